@@ -1,0 +1,47 @@
+"""rift_jax: learning radar scenes from radar signals (RIFT, in JAX).
+
+Data's path through the package: geometry (`Radar`, `Viewpoints`, `antenna_positions`) →
+scene (`Scene`, `rift_jax.scenes`) → GRT kernel (`rift_jax.grt`) → operator
+(`grt_operator`) → data (`synthesize`).
+"""
+
+import os as _os
+
+
+def _use_every_cpu_core() -> None:
+    """Give JAX one CPU device per core (unless the user chose a number, or JAX has already
+    started). XLA runs one small computation on about one core; rift_jax spreads independent
+    viewpoints over devices, so this is what makes both cores of a small machine work.
+    Set ``RIFT_JAX_CPU_DEVICES=1`` to opt out."""
+    import jax
+
+    wanted = _os.environ.get("RIFT_JAX_CPU_DEVICES")
+    if "xla_force_host_platform_device_count" in _os.environ.get("XLA_FLAGS", ""):
+        return
+    try:
+        n = int(wanted) if wanted else len(_os.sched_getaffinity(0))
+    except (ValueError, AttributeError):
+        n = _os.cpu_count() or 1
+    if n > 1 and jax.config.jax_num_cpu_devices in (-1, 1):
+        try:
+            jax.config.update("jax_num_cpu_devices", n)
+        except RuntimeError:  # JAX's backends are already up: keep what the user has
+            pass
+
+
+_use_every_cpu_core()
+
+from . import grt as grt  # noqa: E402
+from . import scenes as scenes  # noqa: E402
+from ._geometry import C0 as C0  # noqa: E402
+from ._geometry import Radar as Radar  # noqa: E402
+from ._geometry import Viewpoints as Viewpoints  # noqa: E402
+from ._geometry import antenna_positions as antenna_positions  # noqa: E402
+from ._operator import GRT as GRT  # noqa: E402
+from ._operator import grt_operator as grt_operator  # noqa: E402
+from ._scenes import Scene as Scene  # noqa: E402
+from ._scenes import grid_points as grid_points  # noqa: E402
+from ._synthesis import RadarData as RadarData  # noqa: E402
+from ._synthesis import synthesize as synthesize  # noqa: E402
+
+__version__ = "0.1.0"

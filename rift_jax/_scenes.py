@@ -1,0 +1,231 @@
+"""Scenes: complex reflectivity sampled on a regular grid centred at the origin, and the
+paper's synthetic scenes (Section 4, Appendix "Additional Results").
+
+Grid convention: points at ``(i - (n - 1)/2) · granularity`` for i < n, with n the most that
+fit within ``±extent``, endpoints included when ``2·extent`` is a multiple of the granularity.
+Such grids nest: the 0.4 m grid over ±5 m (26 points per axis) is every other point of the
+0.2 m grid (51 points). NOTES.md ("two-grid protocol") explains why nesting matters: data
+synthesised on one grid is only explainable on a grid whose points it shares.
+
+Each voxel is a point scatterer at its grid point; a builder marks a voxel occupied when its
+point lies inside the object (boundaries inclusive, to 1e-6 m).
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Complex, Float
+
+from ._validation import as_finite_array, check_positive
+
+_TOL = 1e-6  # metres: points on an object's boundary count as inside
+
+
+def grid_size(extent: float, granularity: float) -> int:
+    """Points per axis of the grid with this ``granularity`` within ``±extent``."""
+    check_positive("`extent`", extent)
+    check_positive("`granularity`", granularity)
+    if granularity > extent:
+        raise ValueError(
+            f"`granularity` ({granularity} m) must not exceed `extent` ({extent} m, the "
+            "half-width): the grid would have a single point."
+        )
+    return int(math.floor(2 * extent / granularity + 1e-6)) + 1
+
+
+def grid_axis(extent: float, granularity: float) -> np.ndarray:
+    """The grid's coordinates along one axis (metres, float64, centred at 0)."""
+    n = grid_size(extent, granularity)
+    return (np.arange(n) - (n - 1) / 2) * granularity
+
+
+def grid_points(extent: float, granularity: float) -> Float[np.ndarray, "n_points 3"]:
+    """All points of the cubic grid, x-major (the order of ``reflectivity.ravel()``)."""
+    axis = grid_axis(extent, granularity)
+    return np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+class Scene(eqx.Module):
+    """Complex reflectivity ρ on a cubic grid centred at the origin.
+
+    **Fields:**
+
+    - `reflectivity`: complex array (n, n, n), axes x, y, z.
+    - `extent`: half-width of the scene (m).
+    - `granularity`: distance between neighbouring points (m).
+    """
+
+    reflectivity: Complex[Array, "nx ny nz"]
+    extent: float = eqx.field(static=True)
+    granularity: float = eqx.field(static=True)
+
+    def __check_init__(self):
+        shape = self.reflectivity.shape
+        n = grid_size(self.extent, self.granularity)
+        if shape != (n, n, n):
+            raise ValueError(
+                f"Scene: `reflectivity` must have shape {(n, n, n)} for extent {self.extent} m "
+                f"and granularity {self.granularity} m, got {shape}."
+            )
+
+    @classmethod
+    def from_array(cls, array, extent: float) -> Scene:
+        """A scene from a user's (n, n, n) array of reflectivity spanning ``±extent`` (its
+        first and last points on the faces), so ``granularity = 2·extent/(n - 1)``."""
+        check_positive("Scene.from_array: `extent`", extent)
+        arr = as_finite_array(array, "Scene.from_array: `array`")
+        if arr.ndim != 3 or len(set(arr.shape)) != 1 or arr.shape[0] < 2:
+            raise ValueError(
+                f"Scene.from_array: `array` must be a cube (n, n, n) with n ≥ 2, got {arr.shape}."
+            )
+        granularity = 2 * extent / (arr.shape[0] - 1)
+        return cls(jnp.asarray(arr, jnp.complex64), float(extent), float(granularity))
+
+    @classmethod
+    def empty(cls, extent: float, granularity: float) -> Scene:
+        """An all-zero scene (e.g. a reconstruction grid)."""
+        n = grid_size(extent, granularity)
+        return cls(jnp.zeros((n, n, n), jnp.complex64), float(extent), float(granularity))
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return self.reflectivity.shape
+
+    def axis(self) -> np.ndarray:
+        """Coordinates of the grid along each axis (metres)."""
+        return grid_axis(self.extent, self.granularity)
+
+    def points(self) -> Float[np.ndarray, "n_points 3"]:
+        """The voxel centres, (V, 3) metres, in the order of ``reflectivity.ravel()``."""
+        return grid_points(self.extent, self.granularity)
+
+    def occupied(self) -> tuple[Float[np.ndarray, "k 3"], Complex[np.ndarray, " k"]]:
+        """Points and reflectivity of the non-zero voxels only (empty space carries no
+        signal, so synthesis skips it)."""
+        rho = np.asarray(self.reflectivity).ravel()
+        keep = np.flatnonzero(rho)
+        return self.points()[keep], rho[keep]
+
+    def resample(self, granularity: float, *, order: int = 1, anti_aliasing: bool = True) -> Scene:
+        """This scene on the grid of another ``granularity`` over the same extent.
+
+        Interpolates real and imaginary parts with scikit-image (``skimage.transform.warp``,
+        spline ``order``), sampling at the new grid's exact physical points: ``resize`` maps
+        pixel edges to pixel edges, which for grids with endpoints would shift points by up to
+        half a voxel. When coarsening, ``anti_aliasing`` first applies the Gaussian that
+        ``skimage.transform.resize`` would (σ = (factor - 1)/2 voxels).
+        """
+        from skimage.filters import gaussian
+        from skimage.transform import warp
+
+        n_new = grid_size(self.extent, granularity)
+        factor = granularity / self.granularity
+        coords = (grid_axis(self.extent, granularity) / self.granularity) + (self.shape[0] - 1) / 2
+        mesh = np.stack(np.meshgrid(coords, coords, coords, indexing="ij"))
+        rho = np.asarray(self.reflectivity)
+
+        def one(part: np.ndarray) -> np.ndarray:
+            if anti_aliasing and factor > 1:
+                part = gaussian(part, sigma=max(0.0, (factor - 1) / 2), mode="nearest")
+            return warp(part, mesh, order=order, mode="constant", cval=0.0, clip=False,
+                        preserve_range=True)
+
+        out = one(rho.real.astype(np.float64)) + 1j * one(rho.imag.astype(np.float64))
+        assert out.shape == (n_new,) * 3
+        return Scene(jnp.asarray(out, jnp.complex64), self.extent, float(granularity))
+
+
+# --- The paper's scenes -----------------------------------------------------------------
+
+def _scene_from_boxes(boxes, extent: float, granularity: float) -> Scene:
+    """Union of axis-aligned boxes ``(centre, size, value)``; later boxes overwrite earlier."""
+    x, y, z = np.meshgrid(*(grid_axis(extent, granularity),) * 3, indexing="ij")
+    rho = np.zeros(x.shape, np.complex64)
+    for centre, size, value in boxes:
+        inside = np.ones(x.shape, bool)
+        for coord, c, s in zip((x, y, z), centre, size, strict=True):
+            inside &= np.abs(coord - c) <= s / 2 + _TOL
+        rho[inside] = value
+    return Scene(jnp.asarray(rho), float(extent), float(granularity))
+
+
+def sphere(granularity: float = 0.2, *, extent: float = 5.0, radius: float = 2.0) -> Scene:
+    """Solid sphere of ``radius`` (paper: 2 m) centred at the origin, ρ = 1.
+    At 0.2 m: 4,169 occupied voxels."""
+    axis = grid_axis(extent, granularity)
+    x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
+    rho = (x**2 + y**2 + z**2 <= (radius + _TOL) ** 2).astype(np.complex64)
+    return Scene(jnp.asarray(rho), float(extent), float(granularity))
+
+
+def cube(granularity: float = 0.2, *, extent: float = 5.0, edge: float = 2.0) -> Scene:
+    """Solid axis-aligned cube of ``edge`` (paper: 2 m) centred at the origin, ρ = 1."""
+    return _scene_from_boxes([((0, 0, 0), (edge, edge, edge), 1.0)], extent, granularity)
+
+
+def pyramid(
+    granularity: float = 0.2, *, extent: float = 5.0, base: float = 2.0, height: float = 2.0
+) -> Scene:
+    """Solid square pyramid (the paper's "tetrahedron"): ``base × base`` square at
+    z = -height/2, apex at z = +height/2 (bounding box centred at the origin; the paper
+    does not place it), ρ = 1."""
+    axis = grid_axis(extent, granularity)
+    x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
+    half = (base / 2) * (height / 2 - z) / height  # half-width of the cross-section at z
+    inside = (np.abs(z) <= height / 2 + _TOL) & (np.maximum(np.abs(x), np.abs(y)) <= half + _TOL)
+    return Scene(jnp.asarray(inside.astype(np.complex64)), float(extent), float(granularity))
+
+
+GROUND = -1.0
+"""z (m) on which the complex scenes' objects stand. The paper gives their sizes, not their
+vertical placement; standing them on z = -1 keeps every object inside the 10 m cube."""
+
+
+def parking_lot(granularity: float = 0.2, *, extent: float = 5.0) -> Scene:
+    """The "mini parking lot" (Section 4.1.2): a road along y; ten street lights 2.2 m tall
+    (0.2 × 0.2 m poles) in two rows of five at x = ±1.8 m, y ∈ {-4, -2, 0, 2, 4}; a car
+    0.8 × 0.6 × 0.6 m (x × y × z) at x = -0.9, y = -1 and a car 1.0 × 0.4 × 0.4 m at
+    x = +0.9, y = 1.5, on opposite sides of the road; all on the ground z = -1, ρ = 1.
+    Positions the paper leaves open are chosen here and kept fixed."""
+    boxes = []
+    for x in (-1.8, 1.8):
+        for y in (-4.0, -2.0, 0.0, 2.0, 4.0):
+            boxes.append(((x, y, GROUND + 1.1), (0.2, 0.2, 2.2), 1.0))
+    boxes.append(((-0.9, -1.0, GROUND + 0.3), (0.8, 0.6, 0.6), 1.0))
+    boxes.append(((0.9, 1.5, GROUND + 0.2), (1.0, 0.4, 0.4), 1.0))
+    return _scene_from_boxes(boxes, extent, granularity)
+
+
+def highway(granularity: float = 0.2, *, extent: float = 5.0) -> Scene:
+    """The "mini highway" (Appendix): street lights 1.8 m tall (0.2 × 0.2 m poles) at
+    x = ±4.4 m spaced 3.2 m along y (y ∈ {-4.8, -1.6, 1.6, 4.8}); fences 2.0 m tall and
+    0.2 m thick along the whole y extent at x = -4, 0 and +4; a car 0.8 × 2.4 × 1.6 m
+    (x × y × z) centred at x = 2, y = 3.2 (3.8 m from the origin), all on z = -1, ρ = 1."""
+    boxes = []
+    for x in (-4.4, 4.4):
+        for y in (-4.8, -1.6, 1.6, 4.8):
+            boxes.append(((x, y, GROUND + 0.9), (0.2, 0.2, 1.8), 1.0))
+    for x in (-4.0, 0.0, 4.0):
+        boxes.append(((x, 0.0, GROUND + 1.0), (0.2, 2 * extent, 2.0), 1.0))
+    boxes.append(((2.0, 3.2, GROUND + 0.8), (0.8, 2.4, 1.6), 1.0))
+    return _scene_from_boxes(boxes, extent, granularity)
+
+
+def weak_target(ratio: float = 1.0, granularity: float = 0.12, *, extent: float = 3.0) -> Scene:
+    """The weak-target study (Section 4.3): two bars 0.72 × 2.4 × 0.48 m (x × y × z) on
+    either side of the y axis with a 1.2 m gap between them (centres at x = ±0.96 m), centred
+    in y and z. The bar at negative x has ρ = 1, the one at positive x has ρ = ``ratio``
+    (paper: 1, 0.5, 0.333, 0.25)."""
+    if not (isinstance(ratio, int | float | np.floating) and 0 < ratio <= 1):
+        raise ValueError(
+            f"weak_target: `ratio` is the weak bar's reflectivity relative to the strong one, "
+            f"in (0, 1]; got {ratio!r} (for a 4:1 contrast pass 0.25)."
+        )
+    size = (0.72, 2.4, 0.48)
+    offset = 0.6 + size[0] / 2
+    boxes = [((-offset, 0.0, 0.0), size, 1.0), ((offset, 0.0, 0.0), size, float(ratio))]
+    return _scene_from_boxes(boxes, extent, granularity)

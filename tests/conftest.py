@@ -1,0 +1,37 @@
+import jax
+import numpy as np
+import pytest
+
+import rift_jax as rj
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(0)
+
+
+@pytest.fixture
+def x64():
+    """Run the test body with 64-bit types enabled (restored afterwards)."""
+    with jax.enable_x64(True):
+        yield
+
+
+def relative_error(a, b) -> float:
+    a, b = np.asarray(a), np.asarray(b)
+    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+
+
+def random_points(rng, n, half_width):
+    """Random points in the scene cube, rounded to float32 (the values the kernel sees)."""
+    return rng.uniform(-half_width, half_width, (n, 3)).astype(np.float32)
+
+
+def random_complex(rng, *shape, dtype=np.complex64):
+    return (rng.normal(size=shape) + 1j * rng.normal(size=shape)).astype(dtype)
+
+
+@pytest.fixture
+def small_radar():
+    """A radar with the paper's band and spacing but fewer channels: fast to compile."""
+    return rj.Radar(n_frequencies=12, n_tx=4, n_rx=5)

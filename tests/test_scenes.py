@@ -1,0 +1,98 @@
+import numpy as np
+import pytest
+
+import rift_jax as rj
+from rift_jax import scenes
+
+
+def occupied(scene):
+    return int(np.count_nonzero(np.asarray(scene.reflectivity)))
+
+
+def test_grids_include_endpoints_and_nest():
+    fine, coarse = rj.Scene.empty(5.0, 0.2), rj.Scene.empty(5.0, 0.4)
+    assert fine.shape == (51,) * 3 and coarse.shape == (26,) * 3
+    np.testing.assert_allclose(fine.axis()[[0, -1]], [-5, 5])
+    np.testing.assert_allclose(fine.axis()[::2], coarse.axis(), atol=1e-12)
+    points = fine.points()
+    assert points.shape == (51**3, 3)
+    # x-major, matching reflectivity.ravel()
+    np.testing.assert_allclose(points[1], [-5, -5, -4.8])
+    assert rj.Scene.empty(3.0, 0.12).shape == (51,) * 3
+
+
+def test_paper_scene_sizes():
+    g = 0.2
+    sphere = scenes.sphere(g)
+    assert occupied(sphere) == pytest.approx(4 / 3 * np.pi * 2**3 / g**3, rel=0.01)
+    assert occupied(scenes.cube(g)) == 11**3
+    pyramid = np.abs(np.asarray(scenes.pyramid(g).reflectivity)) > 0
+    z = rj.Scene.empty(5.0, g).axis()
+    layers = pyramid.sum(axis=(0, 1))
+    assert layers[np.isclose(z, -1.0)] == 121 and layers[np.isclose(z, 1.0)] == 1
+    assert not layers[z < -1.01].any() and not layers[z > 1.01].any()
+    for build in (scenes.parking_lot, scenes.highway):
+        scene = build(g)
+        assert scene.shape == (51,) * 3 and occupied(scene) > 100
+        assert np.abs(np.asarray(scene.reflectivity)).max() == 1
+
+
+def test_weak_target_bars():
+    scene = scenes.weak_target(0.25)
+    assert scene.granularity == 0.12 and scene.extent == 3.0
+    rho = np.abs(np.asarray(scene.reflectivity))
+    x = scene.axis()
+    strong, weak = rho[x < 0].max(), rho[x > 0].max()
+    assert strong == 1.0 and weak == pytest.approx(0.25)
+    occupied_x = x[rho.max(axis=(1, 2)) > 0]
+    gap = occupied_x[occupied_x > 0].min() - occupied_x[occupied_x < 0].max()
+    assert gap == pytest.approx(1.2, abs=1e-6)
+    assert occupied_x.max() - occupied_x[occupied_x > 0].min() == pytest.approx(0.72, abs=1e-6)
+    with pytest.raises(ValueError, match="ratio"):
+        scenes.weak_target(4.0)
+
+
+@pytest.mark.parametrize("granularity", [0.0, -0.2, float("nan"), 6.0])
+def test_bad_granularity(granularity):
+    with pytest.raises(ValueError, match="granularity"):
+        scenes.cube(granularity)
+
+
+def test_from_array_and_errors():
+    array = np.zeros((11, 11, 11))
+    array[5, 5, 5] = 2.0
+    scene = rj.Scene.from_array(array, extent=1.0)
+    assert scene.granularity == pytest.approx(0.2)
+    points, rho = scene.occupied()
+    np.testing.assert_allclose(points, [[0, 0, 0]], atol=1e-12)
+    np.testing.assert_allclose(rho, [2.0])
+    with pytest.raises(ValueError, match="cube"):
+        rj.Scene.from_array(np.zeros((4, 4, 5)), 1.0)
+    bad = array.copy()
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        rj.Scene.from_array(bad, 1.0)
+    with pytest.raises(ValueError, match="shape"):
+        rj.Scene(scene.reflectivity, 1.0, 0.3)
+
+
+def test_resample_samples_nested_points_exactly(rng):
+    values = rng.normal(size=(51,) * 3) + 1j * rng.normal(size=(51,) * 3)
+    scene = rj.Scene.from_array(values, 5.0)
+    coarse = scene.resample(0.4, anti_aliasing=False)
+    assert coarse.shape == (26,) * 3 and coarse.granularity == 0.4
+    np.testing.assert_allclose(np.asarray(coarse.reflectivity), values[::2, ::2, ::2], atol=1e-5)
+
+
+def test_resample_linear_field_and_anti_aliasing():
+    axis = rj.Scene.empty(5.0, 0.4).axis()
+    x = np.meshgrid(axis, axis, axis, indexing="ij")[0]
+    scene = rj.Scene.from_array(x + 0.5j * x, 5.0)
+    fine = scene.resample(0.2)  # refining: trilinear interpolation is exact on a linear field
+    fine_x = np.meshgrid(*(fine.axis(),) * 3, indexing="ij")[0]
+    np.testing.assert_allclose(np.asarray(fine.reflectivity), fine_x + 0.5j * fine_x, atol=1e-5)
+    cube = scenes.cube(0.2)
+    smooth = np.abs(np.asarray(cube.resample(0.4).reflectivity))
+    sharp = np.abs(np.asarray(cube.resample(0.4, anti_aliasing=False).reflectivity))
+    assert set(np.unique(sharp)) <= {0.0, 1.0}
+    assert ((smooth > 0.01) & (smooth < 0.99)).any()
