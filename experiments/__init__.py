@@ -1,0 +1,1 @@
+"""The paper's experiments, one runnable module each (``python -m experiments.<name>``)."""
