@@ -51,12 +51,16 @@ def main(argv=None) -> dict:
     print(f"complex64 matmul (1024³):           {rate:6.2f} G/s")
 
     forward = jax.jit(lambda r: grt.forward(points, r, tx, rx, freqs))
-    both = jax.jit(lambda r: grt.adjoint(points, grt.forward(points, r, tx, rx, freqs), tx, rx, freqs))
+    both = jax.jit(
+        lambda r: grt.adjoint(points, grt.forward(points, r, tx, rx, freqs), tx, rx, freqs)
+    )
     t_fwd = median_seconds(forward, rho, repeats=args.repeats)
     t_both = median_seconds(both, rho, repeats=args.repeats)
     out |= {"one_view_forward_s": t_fwd, "one_view_forward_backward_s": t_both}
-    print(f"one view, forward:                  {t_fwd:6.3f} s  {work / t_fwd / 1e9:5.2f} G/s "
-          f"({work / t_fwd / 1e9 / rate:4.0%} of matmul)")
+    print(
+        f"one view, forward:                  {t_fwd:6.3f} s  {work / t_fwd / 1e9:5.2f} G/s "
+        f"({work / t_fwd / 1e9 / rate:4.0%} of matmul)"
+    )
     print(f"one view, forward + backward:       {t_both:6.3f} s")
 
     vps = rj.Viewpoints.grid(args.views, 1, polar_range=(1.0, 1.0))
@@ -66,8 +70,11 @@ def main(argv=None) -> dict:
     t_many = median_seconds(mv, rho, repeats=args.repeats) / args.views
     t_many_both = median_seconds(round_trip, rho, repeats=args.repeats) / args.views
     out |= {"per_view_forward_s": t_many, "per_view_forward_backward_s": t_many_both}
-    print(f"{args.views} views, forward, per view:      {t_many:6.3f} s  {work / t_many / 1e9:5.2f} G/s "
-          f"({work / t_many / 1e9 / rate:4.0%} of matmul)")
+    print(
+        f"{args.views} views, forward, per view:      {t_many:6.3f} s  "
+        f"{work / t_many / 1e9:5.2f} G/s "
+        f"({work / t_many / 1e9 / rate:4.0%} of matmul)"
+    )
     print(f"{args.views} views, forward + backward, per view: {t_many_both:6.3f} s")
 
     if not args.skip_memory:
@@ -75,11 +82,17 @@ def main(argv=None) -> dict:
         rho_big = jnp.ones(big.shape[0], jnp.complex64)
         compiled = jax.jit(lambda r: grt.forward(big, r, tx, rx, freqs)).lower(rho_big).compile()
         mem = compiled.memory_analysis()
-        peak = (mem.temp_size_in_bytes + mem.argument_size_in_bytes + mem.output_size_in_bytes
-                + mem.generated_code_size_in_bytes)
+        peak = (
+            mem.temp_size_in_bytes
+            + mem.argument_size_in_bytes
+            + mem.output_size_in_bytes
+            + mem.generated_code_size_in_bytes
+        )
         out["peak_bytes_51cubed"] = peak
-        print(f"one view at V = 51³ = {big.shape[0]}: peak {peak / 2**20:7.1f} MiB "
-              f"(temp {mem.temp_size_in_bytes / 2**20:.1f} MiB)")
+        print(
+            f"one view at V = 51³ = {big.shape[0]}: peak {peak / 2**20:7.1f} MiB "
+            f"(temp {mem.temp_size_in_bytes / 2**20:.1f} MiB)"
+        )
 
     if not args.skip_synthesis:
         start = time.perf_counter()

@@ -130,7 +130,9 @@ class Viewpoints:
         included, as ``np.linspace``), azimuth-major. Defaults give the paper's 2,601."""
         for name, n in (("n_azimuth", n_azimuth), ("n_polar", n_polar)):
             if not isinstance(n, int | np.integer) or n < 1:
-                raise ValueError(f"Viewpoints.grid: `{name}` must be a positive integer, got {n!r}.")
+                raise ValueError(
+                    f"Viewpoints.grid: `{name}` must be a positive integer, got {n!r}."
+                )
         az = np.linspace(*azimuth_range, n_azimuth)
         pol = np.linspace(*polar_range, n_polar)
         az, pol = np.meshgrid(az, pol, indexing="ij")
@@ -145,7 +147,11 @@ class Viewpoints:
     def subset(self, index: Sequence[int] | np.ndarray) -> Viewpoints:
         """The viewpoints at integer positions (or a boolean mask) ``index``."""
         index = np.asarray(index)
-        if index.dtype != bool and index.size and (index.min() < -len(self) or index.max() >= len(self)):
+        if (
+            index.dtype != bool
+            and index.size
+            and (index.min() < -len(self) or index.max() >= len(self))
+        ):
             raise ValueError(f"Viewpoints.subset: `index` out of range for {len(self)} viewpoints.")
         return self[index]
 
@@ -161,7 +167,9 @@ class Viewpoints:
                 f"{len(self)} viewpoints available."
             )
         order = np.random.default_rng(seed).permutation(len(self))
-        return self.subset(np.sort(order[:n_train])), self.subset(np.sort(order[n_train:n_train + n_test]))
+        return self.subset(np.sort(order[:n_train])), self.subset(
+            np.sort(order[n_train : n_train + n_test])
+        )
 
     def __repr__(self) -> str:
         return f"Viewpoints(n={len(self)})"

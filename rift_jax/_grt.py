@@ -300,7 +300,9 @@ def adjoint(
     signal = jnp.asarray(signal)
     expected = (plan.n, tx.shape[0], rx.shape[0])
     if signal.shape != expected:
-        raise ValueError(f"`signal` must have shape {expected} (n_freq, n_tx, n_rx), got {signal.shape}.")
+        raise ValueError(
+            f"`signal` must have shape {expected} (n_freq, n_tx, n_rx), got {signal.shape}."
+        )
     check_finite(signal, "`signal`")
     signal = signal.astype(_complex_dtype(signal))
     return _adjoint_kernel(

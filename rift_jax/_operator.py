@@ -84,7 +84,8 @@ class GRT(eqx.Module):
 
         def local(azimuth, polar, rho):
             return jax.lax.map(
-                lambda ap: self._kernel(_grt._forward_kernel, rho, *ap), (azimuth, polar),
+                lambda ap: self._kernel(_grt._forward_kernel, rho, *ap),
+                (azimuth, polar),
                 batch_size=_views_per_batch(),
             )
 
@@ -95,7 +96,9 @@ class GRT(eqx.Module):
         conjugate transpose of `__call__`."""
         signal = jnp.asarray(signal, jnp.complex64)
         if signal.shape != self.out_shape:
-            raise ValueError(f"GRT.adjoint: `signal` must have shape {self.out_shape}, got {signal.shape}.")
+            raise ValueError(
+                f"GRT.adjoint: `signal` must have shape {self.out_shape}, got {signal.shape}."
+            )
 
         def local(azimuth, polar, signal):
             def step(acc, xs):
@@ -110,8 +113,14 @@ class GRT(eqx.Module):
     def _kernel(self, kernel, data, azimuth, polar):
         points, tx, rx, freqs = self._geometry(azimuth, polar)
         return kernel(
-            points, tx, rx, None, data, plan=_grt.frequency_plan(freqs),
-            near_field=self.radar.near_field, chunk=self.chunk_size,
+            points,
+            tx,
+            rx,
+            None,
+            data,
+            plan=_grt.frequency_plan(freqs),
+            near_field=self.radar.near_field,
+            chunk=self.chunk_size,
         )
 
 
@@ -178,10 +187,13 @@ def grt_operator(
     every gradient through it, runs the hand-written adjoint kernel.
     """
     if not isinstance(radar, Radar):
-        raise ValueError(f"grt_operator: `radar` must be a rift_jax.Radar, got {type(radar).__name__}.")
+        raise ValueError(
+            f"grt_operator: `radar` must be a rift_jax.Radar, got {type(radar).__name__}."
+        )
     if not isinstance(viewpoints, Viewpoints):
         raise ValueError(
-            f"grt_operator: `viewpoints` must be rift_jax.Viewpoints, got {type(viewpoints).__name__}."
+            "grt_operator: `viewpoints` must be rift_jax.Viewpoints, got "
+            f"{type(viewpoints).__name__}."
         )
     points = as_finite_array(grid_points, "grt_operator: `grid_points`", np.float64)
     if points.ndim != 2 or points.shape[1] != 3 or points.shape[0] == 0:
@@ -189,7 +201,9 @@ def grt_operator(
             f"grt_operator: `grid_points` must have shape (V, 3) with V ≥ 1, got {points.shape}."
         )
     if not isinstance(chunk_size, int) or chunk_size < 1:
-        raise ValueError(f"grt_operator: `chunk_size` must be a positive integer, got {chunk_size!r}.")
+        raise ValueError(
+            f"grt_operator: `chunk_size` must be a positive integer, got {chunk_size!r}."
+        )
     fn = GRT(
         radar,
         jnp.asarray(viewpoints.azimuth, jnp.float32),

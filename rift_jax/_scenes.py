@@ -131,8 +131,9 @@ class Scene(eqx.Module):
         def one(part: np.ndarray) -> np.ndarray:
             if anti_aliasing and factor > 1:
                 part = gaussian(part, sigma=max(0.0, (factor - 1) / 2), mode="nearest")
-            return warp(part, mesh, order=order, mode="constant", cval=0.0, clip=False,
-                        preserve_range=True)
+            return warp(
+                part, mesh, order=order, mode="constant", cval=0.0, clip=False, preserve_range=True
+            )
 
         out = one(rho.real.astype(np.float64)) + 1j * one(rho.imag.astype(np.float64))
         assert out.shape == (n_new,) * 3
@@ -140,6 +141,7 @@ class Scene(eqx.Module):
 
 
 # --- The paper's scenes -----------------------------------------------------------------
+
 
 def _scene_from_boxes(boxes, extent: float, granularity: float) -> Scene:
     """Union of axis-aligned boxes ``(centre, size, value)``; later boxes overwrite earlier."""

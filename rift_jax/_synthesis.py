@@ -66,7 +66,9 @@ def synthesize(
     """
     radar = Radar() if radar is None else radar
     if not isinstance(scene, Scene):
-        raise ValueError(f"synthesize: `scene` must be a rift_jax.Scene, got {type(scene).__name__}.")
+        raise ValueError(
+            f"synthesize: `scene` must be a rift_jax.Scene, got {type(scene).__name__}."
+        )
     if snr_db is not None and not np.isfinite(snr_db):
         raise ValueError(f"synthesize: `snr_db` must be a finite number or None, got {snr_db!r}.")
     points, rho = scene.occupied()
@@ -79,7 +81,9 @@ def synthesize(
     if snr_db is not None:
         power = jnp.mean(jnp.abs(signal) ** 2) / 10 ** (snr_db / 10)
         key_re, key_im = jax.random.split(jax.random.key(seed))
-        noise = jax.random.normal(key_re, signal.shape) + 1j * jax.random.normal(key_im, signal.shape)
+        noise = jax.random.normal(key_re, signal.shape) + 1j * jax.random.normal(
+            key_im, signal.shape
+        )
         noisy = signal + jnp.sqrt(power / 2) * noise.astype(jnp.complex64)
         peak = float(jnp.max(jnp.abs(noisy)))
         signal, scale = noisy / peak, scale * peak

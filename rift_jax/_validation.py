@@ -28,7 +28,9 @@ def as_finite_array(x, name: str, dtype=None) -> np.ndarray:
     except (TypeError, ValueError) as err:
         raise ValueError(f"{name} must be a numeric array, got {type(x).__name__}.") from err
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite; it holds {np.sum(~np.isfinite(arr))} NaN/inf values.")
+        raise ValueError(
+            f"{name} must be finite; it holds {np.sum(~np.isfinite(arr))} NaN/inf values."
+        )
     return arr
 
 

@@ -33,8 +33,10 @@ def test_forward_float32_matches_float64_reference(rng, distance, half_width, ne
 def test_plain_float32_would_fail_the_accuracy_bar(rng):
     """The bar above is not loose: a direct float32 evaluation misses it by ~100x."""
     radar, points, rho, tx, rx = setup(rng, 10.0)
-    r_b = (np.linalg.norm(points[:, None] - tx[None].astype(np.float32), axis=-1)[:, :, None]
-           + np.linalg.norm(points[:, None] - rx[None].astype(np.float32), axis=-1)[:, None, :])
+    r_b = (
+        np.linalg.norm(points[:, None] - tx[None].astype(np.float32), axis=-1)[:, :, None]
+        + np.linalg.norm(points[:, None] - rx[None].astype(np.float32), axis=-1)[:, None, :]
+    )
     k = (2 * np.pi * radar.frequencies / rj.C0).astype(np.float32)
     naive = np.einsum("v,fvmn->fmn", rho, np.exp(1j * k[:, None, None, None] * r_b) / r_b**2)
     expected = reference.forward(points, rho, tx, rx, radar.frequencies)
@@ -79,10 +81,15 @@ def test_point_scatterer_phase_and_amplitude(near_field):
     radar = rj.Radar()
     tx, rx = reference.antenna_positions(10.0, radar.spacing, 16, 16, 0.7, 1.2)
     point = np.array([[1.3, -0.4, 2.1]], np.float32)
-    s = np.asarray(grt.forward(point, np.ones(1, np.complex64), tx, rx, radar.frequencies,
-                               near_field=near_field))
-    r_b = (np.linalg.norm(point.astype(np.float64) - tx, axis=-1)[:, None]
-           + np.linalg.norm(point.astype(np.float64) - rx, axis=-1)[None, :])
+    s = np.asarray(
+        grt.forward(
+            point, np.ones(1, np.complex64), tx, rx, radar.frequencies, near_field=near_field
+        )
+    )
+    r_b = (
+        np.linalg.norm(point.astype(np.float64) - tx, axis=-1)[:, None]
+        + np.linalg.norm(point.astype(np.float64) - rx, axis=-1)[None, :]
+    )
     k = 2 * np.pi * radar.frequencies / rj.C0
     expected_phase = np.angle(np.exp(1j * k[:, None, None] * r_b))
     phase_error = np.angle(s * np.exp(-1j * expected_phase))
@@ -95,8 +102,9 @@ def test_swapping_arrays_transposes_signal(rng):
     radar, points, rho, tx, rx = setup(rng, 10.0, n_points=100)
     s = grt.forward(points, rho, tx, rx, radar.frequencies)
     swapped = grt.forward(points, rho, rx, tx, radar.frequencies)
-    np.testing.assert_allclose(np.asarray(swapped), np.swapaxes(np.asarray(s), 1, 2),
-                               rtol=0, atol=1e-6 * np.abs(s).max())
+    np.testing.assert_allclose(
+        np.asarray(swapped), np.swapaxes(np.asarray(s), 1, 2), rtol=0, atol=1e-6 * np.abs(s).max()
+    )
 
 
 def test_linearity_and_chunk_invariance(rng):
@@ -123,7 +131,9 @@ def test_jit_vmap_and_grad_agree_with_eager(rng):
     eager = np.stack([np.asarray(grt.forward(points, rho, tx, rx, freqs)) for tx, rx in geometry])
     jitted = jax.jit(signal)(rho, angles[1, 0], angles[1, 1])
     batched = jax.vmap(signal, in_axes=(None, 0, 0))(rho, angles[:, 0], angles[:, 1])
-    np.testing.assert_allclose(np.asarray(jitted), eager[1], rtol=0, atol=1e-5 * np.abs(eager).max())
+    np.testing.assert_allclose(
+        np.asarray(jitted), eager[1], rtol=0, atol=1e-5 * np.abs(eager).max()
+    )
     np.testing.assert_allclose(np.asarray(batched), eager, rtol=0, atol=1e-5 * np.abs(eager).max())
 
     # grad of a real loss in ρ: for L = ‖Aρ - y‖², JAX's gradient is conj(2 Aᴴ(Aρ - y)).
@@ -136,7 +146,9 @@ def test_jit_vmap_and_grad_agree_with_eager(rng):
     grad_jit = jax.jit(jax.grad(loss))(jnp.asarray(rho))
     tx, rx = geometry[0]
     residual = reference.forward(points, rho, np.asarray(tx), np.asarray(rx), freqs) - target
-    expected = np.conj(2 * reference.adjoint(points, residual, np.asarray(tx), np.asarray(rx), freqs))
+    expected = np.conj(
+        2 * reference.adjoint(points, residual, np.asarray(tx), np.asarray(rx), freqs)
+    )
     assert relative_error(grad, expected) < 1e-4
     assert relative_error(grad_jit, grad) < 1e-6
 
@@ -156,8 +168,16 @@ def test_jit_vmap_and_grad_agree_with_eager(rng):
 def test_forward_rejects_bad_input(change, word):
     radar = rj.Radar(n_frequencies=3, n_tx=2, n_rx=2)
     tx, rx = rj.antenna_positions(radar, 0.1, 0.2)
-    args = dict(points=np.zeros((5, 3), np.float32), reflectivity=np.ones(5, np.complex64),
-                tx=tx, rx=rx, frequencies=radar.frequencies) | change
+    args = (
+        dict(
+            points=np.zeros((5, 3), np.float32),
+            reflectivity=np.ones(5, np.complex64),
+            tx=tx,
+            rx=rx,
+            frequencies=radar.frequencies,
+        )
+        | change
+    )
     with pytest.raises(ValueError, match=word):
         grt.forward(**args)
 
