@@ -23,6 +23,9 @@ Why it is computed the way it is (NOTES.md, "Numbers measured"):
   grids (or frequencies that are traced) take the direct path: F phases per distance.
 - **Voxel chunks.** Voxels are processed ``chunk_size`` at a time in a ``lax.scan``, so memory
   is O(F·(n_tx + n_rx)·chunk) whatever V is.
+- **Split real arithmetic.** XLA:CPU vectorises float32 far better than complex64, and its
+  real batched matrix products are ~2x faster than complex ones: phasors are (re, im) pairs,
+  and each frequency's product is one real (2·n_tx × K)·(K × 2·n_rx) product.
 
 ``adjoint`` is the exact conjugate transpose of ``forward``: the same phasors, conjugated,
 contracted in the other order. Autodiff through ``forward`` gives the same numbers (tested).
@@ -42,9 +45,6 @@ from ._geometry import C0
 from ._validation import check_finite, is_concrete
 
 _TWO_PI = 2.0 * math.pi
-DEFAULT_CHUNK = 2048
-"""Voxels per scan step: large enough to amortise each small matrix product's overhead, small
-enough that one chunk's phasors (2·F·16·chunk complex64 ≈ 50 MB at 2048) stay in L3."""
 
 
 class FrequencyPlan(NamedTuple):
@@ -79,13 +79,46 @@ def frequency_plan(frequencies) -> FrequencyPlan:
     return FrequencyPlan(f.size)
 
 
-def _cis(wavenumber, r: Array, real_dtype) -> Array:
-    """exp(j k r) with the phase k·r formed and reduced mod 2π in float64 (floor-based: XLA's
-    fmod is a scalar libm call, ~5x slower), then evaluated in ``real_dtype``."""
+_QUARTER_TURN = 0.5 * math.pi
+
+
+def _cis(wavenumber, r: Array, real_dtype) -> tuple[Array, Array]:
+    """(cos, sin) of k·r. The phase is formed in float64 and reduced there to a quadrant q and
+    a remainder |t| ≤ π/4; only t is cast. In float32, short Taylor polynomials (truncation
+    < 2e-9) replace XLA's sin/cos, which cost ~10 ns per element on CPU against ~0.7 ns."""
     phase = jnp.asarray(wavenumber, jnp.float64) * r
-    phase = phase - _TWO_PI * jnp.floor(phase * (1.0 / _TWO_PI))
-    phase = phase.astype(real_dtype)
-    return jax.lax.complex(jnp.cos(phase), jnp.sin(phase))
+    q = jnp.round(phase * (1.0 / _QUARTER_TURN))
+    t = (phase - q * _QUARTER_TURN).astype(real_dtype)
+    quadrant = (q - 4.0 * jnp.floor(q * 0.25)).astype(jnp.int32)
+    if real_dtype == jnp.float64:
+        c, s = jnp.cos(t), jnp.sin(t)
+    else:
+        t2 = t * t
+        s = t * (1 + t2 * (-1 / 6 + t2 * (1 / 120 + t2 * (-1 / 5040 + t2 / 362880))))
+        c = 1 + t2 * (-1 / 2 + t2 * (1 / 24 + t2 * (-1 / 720 + t2 * (1 / 40320 - t2 / 3628800))))
+    odd = (quadrant & 1) == 1  # cos(qπ/2 + t), sin(qπ/2 + t) from cos t, sin t
+    c, s = jnp.where(odd, -s, c), jnp.where(odd, c, s)
+    negate = quadrant >= 2
+    return jnp.where(negate, -c, c), jnp.where(negate, -s, s)
+
+
+def _cmul(a: tuple[Array, Array], b: tuple[Array, Array]) -> tuple[Array, Array]:
+    """Complex product on (real, imaginary) pairs: XLA:CPU vectorises split float32 arithmetic
+    far better than complex64."""
+    return a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0]
+
+
+def _powers(step: tuple[Array, Array], n: int) -> tuple[Array, Array]:
+    """step^j for j < n, stacked on a new leading axis, by doubling: each power carries at most
+    log2(n) complex roundings (a running product would carry up to n)."""
+    re = jnp.stack([jnp.ones_like(step[0]), step[0]])
+    im = jnp.stack([jnp.zeros_like(step[1]), step[1]])
+    square = step
+    while re.shape[0] < n:
+        square = _cmul(square, square)
+        more = _cmul((re, im), (square[0][None], square[1][None]))
+        re, im = jnp.concatenate([re, more[0]]), jnp.concatenate([im, more[1]])
+    return re[:n], im[:n]
 
 
 def _ladder_sizes(n: int) -> tuple[int, int]:
@@ -94,65 +127,87 @@ def _ladder_sizes(n: int) -> tuple[int, int]:
     return -(-n // n_fine), n_fine
 
 
-def _phasor_factors(
-    r: Float[Array, "a v"], amplitude: Array, plan: FrequencyPlan, frequencies, real_dtype
-) -> tuple[Complex[Array, "c a v"], Complex[Array, "b a v"]]:
-    """Two factors whose outer product over their leading axes gives, for frequency
-    f = i·B + j, ``amplitude · exp(j k_f r) = coarse[i] · fine[j]``. ``r`` is float64.
+def _distances(points: Array, antennas: Array) -> Float[Array, "a v"]:
+    """|x_v - antenna_a| in float64 (call inside ``jax.enable_x64``). Written elementwise: XLA
+    turns a reduction over the size-3 axis into a slow library call."""
+    p, a = points.astype(jnp.float64), antennas.astype(jnp.float64)
+    d = [p[None, :, i] - a[:, None, i] for i in range(3)]
+    return jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+
+
+def _materialise(fn, flag, *args):
+    """``fn(*args)`` evaluated into buffers of its own. XLA:CPU drops ``optimization_barrier``
+    and would fuse the phasor ladder (sines, cosines, products) into every element of the
+    outer product, recomputing it 100-fold; it never fuses across a conditional. ``flag`` is
+    always true but computed from per-chunk data, so the compiler cannot fold it away.
+    Accelerators recompute cheaply and pay for conditionals: there, ``fn`` runs inline."""
+    if jax.default_backend() != "cpu":
+        return fn(*args)
+    shapes = jax.eval_shape(fn, *args)
+    inputs = jax.tree.leaves(args)
+
+    def zeros(*_):  # the branch never taken
+        return jax.tree.map(lambda x: _zeros(x.shape, x.dtype, *inputs), shapes)
+
+    return jax.lax.cond(flag, fn, zeros, *args)
+
+
+def _factors(points, tx, rx, plan: FrequencyPlan, frequencies, near_field, real_dtype, rho=None):
+    """Phasor factors of one voxel chunk for each side: (coarse, fine), each a (re, im) pair,
+    such that for frequency f = i·B + j, coarse[i] · fine[j] = w · a · exp(j k_f r), with the
+    amplitude a = 1/(2r) (near field) or 1, and the weight w = ρ on the TX side when ``rho``
+    is given (else 1). ρ enters inside the first materialised stage, linearly: multiplied in
+    later, XLA fuses it into the outer product and the forward runs 2x slower (measured).
 
     Uniform grid: three float64-reduced phasors per distance, exp(j k_0 r), exp(j Δk r) and
-    exp(j B Δk r); the fine powers exp(j b Δk r), b < B, and the coarse steps exp(j k_{aB} r)
-    are running products of these (≤ B - 1 and ≤ A - 1 complex roundings: worst case ~2√F ulp
-    of phase error, 1.2e-6 rad for F = 100). Otherwise: coarse holds every frequency, fine is 1.
+    exp(j B Δk r); fine[j] = exp(j Δk r)^j and coarse[i] = exp(j k_0 r) · exp(j B Δk r)^i by
+    doubling (≤ 2 log2 √F complex roundings: ~1e-6 rad). Otherwise coarse holds every
+    frequency and fine is 1.
     """
-    if not plan.uniform:
-        k = _TWO_PI / C0 * jnp.asarray(frequencies, jnp.float64)
-        coarse = _cis(k.reshape((-1,) + (1,) * r.ndim), r, real_dtype) * amplitude
-        return coarse, jnp.ones((1,) + r.shape, coarse.dtype)
+    flag = jnp.isfinite(points[0, 0])
     n_coarse, n_fine = _ladder_sizes(plan.n)
-    k0 = _TWO_PI / C0 * plan.f0
-    dk = _TWO_PI / C0 * plan.df
-    base = _cis(k0, r, real_dtype) * amplitude  # the amplitude rides on the short factor
-    step = _cis(dk, r, real_dtype)
-    big_step = _cis(dk * n_fine, r, real_dtype)
-    # Materialise each stage: left to itself, XLA fuses the running products (and the sines
-    # and cosines under them) into every element of the outer product and recomputes them.
-    base, step, big_step = jax.lax.optimization_barrier((base, step, big_step))
-    fine = [jnp.ones_like(step)]
-    for _ in range(n_fine - 1):
-        fine.append(fine[-1] * step)
-    coarse = [base]
-    for _ in range(n_coarse - 1):
-        coarse.append(coarse[-1] * big_step)
-    return jax.lax.optimization_barrier((jnp.stack(coarse), jnp.stack(fine)))
+
+    def phasors(points, tx, rx, rho):
+        out = []
+        with jax.enable_x64(True):
+            for antennas, weight in ((tx, rho), (rx, None)):
+                r = _distances(points, antennas)
+                amplitude = (0.5 / r).astype(real_dtype) if near_field else None
+                if plan.uniform:
+                    k0, dk = _TWO_PI / C0 * plan.f0, _TWO_PI / C0 * plan.df
+                    base = _cis(k0, r, real_dtype)
+                    steps = (_cis(dk, r, real_dtype), _cis(dk * n_fine, r, real_dtype))
+                else:
+                    k = _TWO_PI / C0 * jnp.asarray(frequencies, jnp.float64)
+                    base, steps = _cis(k[:, None, None], r, real_dtype), None
+                if amplitude is not None:
+                    base = (base[0] * amplitude, base[1] * amplitude)
+                if weight is not None:
+                    base = _cmul(base, (jnp.real(weight), jnp.imag(weight)))
+                out.append((base, steps))
+        return out
+
+    def ladders(sides):
+        out = []
+        for base, steps in sides:
+            if steps is None:  # direct path: all frequencies are in `base` already
+                shape = (1,) + base[0].shape[1:]
+                out.append((base, (jnp.ones(shape, real_dtype), jnp.zeros(shape, real_dtype))))
+                continue
+            coarse = _cmul(_powers(steps[1], n_coarse), (base[0][None], base[1][None]))
+            out.append((coarse, _powers(steps[0], n_fine)))
+        return out
+
+    sides = _materialise(phasors, flag, points, tx, rx, rho)
+    return _materialise(ladders, flag, sides)
 
 
-def _ladder(coarse: Array, fine: Array, n: int) -> Complex[Array, "f a v"]:
-    """All frequencies from the two factors: [coarse[i] · fine[j] for i, j] (first ``n``)."""
-    out = coarse[:, None] * fine[None, :]
-    return out.reshape((-1,) + coarse.shape[1:])[:n]
-
-
-def _distances(points: Array, antennas: Array) -> Float[Array, "a v"]:
-    """|x_v - antenna_a| in float64 (call inside ``jax.enable_x64``)."""
-    d = points.astype(jnp.float64)[None, :, :] - antennas.astype(jnp.float64)[:, None, :]
-    return jnp.sqrt(jnp.sum(d * d, axis=-1))
-
-
-def _factors(points, tx, rx, plan, frequencies, near_field, dtype):
-    """Phasor factors for one voxel chunk, TX side and RX side; they do not depend on ρ."""
-    real_dtype = jnp.finfo(dtype).dtype
-    with jax.enable_x64(True):
-        r_t = _distances(points, tx)
-        r_r = _distances(points, rx)
-        if near_field:  # 1/R_b² ≈ (1/2r_t)(1/2r_r), see the module docstring
-            a_t = (0.5 / r_t).astype(real_dtype).astype(dtype)
-            a_r = (0.5 / r_r).astype(real_dtype).astype(dtype)
-        else:
-            a_t = a_r = jnp.ones((), dtype)
-        tx_side = _phasor_factors(r_t, a_t, plan, frequencies, real_dtype)
-        rx_side = _phasor_factors(r_r, a_r, plan, frequencies, real_dtype)
-    return tuple(x.astype(dtype) for x in tx_side), tuple(y.astype(dtype) for y in rx_side)
+def _stack_frequencies(coarse, fine, n: int) -> Float[Array, "f 2a k"]:
+    """All frequencies from the ladder, as real blocks [re; im] per frequency: (F, 2a, K)."""
+    cr, ci = coarse[0][:, None], coarse[1][:, None]
+    fr, fi = fine[0][None], fine[1][None]
+    x = jnp.concatenate([cr * fr - ci * fi, cr * fi + ci * fr], axis=2)
+    return x.reshape((-1,) + x.shape[2:])[:n]
 
 
 def _chunked(x: Array, chunk: int) -> Array:
@@ -163,49 +218,83 @@ def _chunked(x: Array, chunk: int) -> Array:
     return x.reshape((n_chunks, chunk) + x.shape[1:])
 
 
+def default_chunk(adjoint: bool = False) -> int:
+    """Voxels per scan step. On CPU, 64 (forward) and 128 (adjoint) keep one chunk's
+    per-frequency operands (100 × 32 × 64 float32 = 0.8 MB) near L2 and gave the best medians
+    (benchmarks/grt.py); accelerators want large steps."""
+    if jax.default_backend() != "cpu":
+        return 4096
+    return 128 if adjoint else 64
+
+
 def chunk_length(n_points: int, chunk_size: int) -> int:
     """The chunk actually used: at most ``chunk_size``, with the points spread evenly over the
-    chunks (rounded up to a multiple of 8), so padding stays small: 4,169 voxels at
-    chunk_size 2,048 give 3 chunks of 1,392, not 3 of 2,048."""
+    chunks (rounded up to a multiple of 8), so padding stays small."""
     n_chunks = -(-n_points // chunk_size)
     per_chunk = -(-n_points // n_chunks)
     return min(chunk_size, -(-per_chunk // 8) * 8)
 
 
-def _forward_kernel(points, tx, rx, frequencies, rho, *, plan, near_field, chunk):
-    """S for one viewpoint: a scan over voxel chunks, each a batch of F small products.
+def _zeros(shape, dtype, *like: Array) -> Array:
+    """Zeros that vary over the same ``shard_map`` axes as the arrays ``like`` (a broadcast of
+    their zeros, which carries that type): a scan carry or a never-taken branch must match the
+    device-dependence of what the loop or the other branch produces."""
+    seed = sum((jnp.zeros_like(jnp.ravel(x)[0], dtype=dtype) for x in like), jnp.zeros((), dtype))
+    return jnp.broadcast_to(seed, shape)
 
-    Plain JAX, so every transformation (jit, vmap, grad, linear_transpose) applies; the body
-    is rematerialised (`jax.checkpoint`), so reverse mode and transposition recompute the
-    phasors chunk by chunk instead of storing F·(n_tx + n_rx)·V of them.
+
+def _forward_kernel(points, tx, rx, frequencies, rho, *, plan, near_field, chunk):
+    """S for one viewpoint: a scan over voxel chunks, each one real batched product
+    [Xr; Xi]·[Yr; Yi]ᵀ per frequency ((F, 2M, K)·(F, 2N, K) → (F, 2M, 2N)), from whose blocks
+    S = (XrYr - XiYi) + j(XrYi + XiYr).
+
+    Plain JAX, so every transformation (jit, vmap, grad, linear_transpose) applies. The body is
+    rematerialised (`jax.checkpoint`), so reverse mode and transposition recompute the phasors
+    chunk by chunk instead of storing F·(n_tx + n_rx)·V of them.
     """
-    dtype = rho.dtype
-    chunk = chunk_length(points.shape[0], chunk)
+    real_dtype = jnp.finfo(rho.dtype).dtype
+    chunk = chunk_length(points.shape[0], chunk or default_chunk())
+    n_tx, n_rx = tx.shape[0], rx.shape[0]
 
     @jax.checkpoint
-    def step(p, r):
-        (ct, ft), (cr, fr) = _factors(p, tx, rx, plan, frequencies, near_field, dtype)
-        x = _ladder(ct * r, ft, plan.n)  # ρ enters linearly, after the barriers
-        y = _ladder(cr, fr, plan.n)
-        return jnp.einsum("fmv,fnv->fmn", x, y)
+    def partial_sum(p, r):
+        (coarse_t, fine_t), (coarse_r, fine_r) = _factors(
+            p, tx, rx, plan, frequencies, near_field, real_dtype, r
+        )
+        x = _stack_frequencies(coarse_t, fine_t, plan.n)
+        y = _stack_frequencies(coarse_r, fine_r, plan.n)
+        return jnp.einsum("fmk,fnk->fmn", x, y)
 
-    # Per-chunk results are summed after the scan (no carry): the kernel then maps cleanly
-    # over devices in `shard_map` and over viewpoints in `vmap`.
-    parts = jax.lax.map(lambda pr: step(*pr), (_chunked(points, chunk), _chunked(rho, chunk)))
-    return jnp.sum(parts, axis=0)
+    def step(total, xs):
+        return total + partial_sum(*xs), None
+
+    zero = _zeros((plan.n, 2 * n_tx, 2 * n_rx), real_dtype, tx, rx, rho)
+    total, _ = jax.lax.scan(step, zero, (_chunked(points, chunk), _chunked(rho, chunk)))
+    re = total[:, :n_tx, :n_rx] - total[:, n_tx:, n_rx:]
+    im = total[:, :n_tx, n_rx:] + total[:, n_tx:, :n_rx]
+    return jax.lax.complex(re, im)
 
 
 def _adjoint_kernel(points, tx, rx, frequencies, signal, *, plan, near_field, chunk):
-    """ρ̂ = Σ_{f,m,n} conj(X[f,m,v] Y[f,n,v]) S[f,m,n], chunk by chunk: first the RX side
-    as a batch of small products, then the TX side as a reduction."""
-    dtype = signal.dtype
+    """ρ̂_v = Σ_{f,m,n} conj(X[f,m,v] Y[f,n,v]) S[f,m,n], chunk by chunk: T = S·conj(Y) as
+    one real batched product [[Sr, Si], [Si, -Sr]]·[Yr; Yi] = [Tr; Ti], then Σ_{f,m} conj(X)·T."""
+    real_dtype = jnp.finfo(signal.dtype).dtype
     n = points.shape[0]
-    chunk = chunk_length(n, chunk)
+    chunk = chunk_length(n, chunk or default_chunk(adjoint=True))
+    n_tx = tx.shape[0]
+    sr, si = jnp.real(signal), jnp.imag(signal)
+    mix = jnp.concatenate([jnp.concatenate([sr, si], 2), jnp.concatenate([si, -sr], 2)], 1)
 
     def step(p):
-        (ct, ft), (cr, fr) = _factors(p, tx, rx, plan, frequencies, near_field, dtype)
-        t = jnp.einsum("fmn,fnv->fmv", signal, jnp.conj(_ladder(cr, fr, plan.n)))
-        return jnp.sum(jnp.conj(_ladder(ct, ft, plan.n)) * t, axis=(0, 1))
+        (coarse_t, fine_t), (coarse_r, fine_r) = _factors(
+            p, tx, rx, plan, frequencies, near_field, real_dtype
+        )
+        x = _stack_frequencies(coarse_t, fine_t, plan.n)
+        t = jnp.einsum("fij,fjk->fik", mix, _stack_frequencies(coarse_r, fine_r, plan.n))
+        xr, xi, tr, ti = x[:, :n_tx], x[:, n_tx:], t[:, :n_tx], t[:, n_tx:]
+        return jax.lax.complex(
+            jnp.sum(xr * tr + xi * ti, axis=(0, 1)), jnp.sum(xr * ti - xi * tr, axis=(0, 1))
+        )
 
     return jax.lax.map(step, _chunked(points, chunk)).reshape(-1)[:n]
 
@@ -234,7 +323,7 @@ def _host_float64(x):
 def _prepare(points, tx, rx, frequencies, chunk_size):
     _check_geometry(points, tx, rx)
     plan = frequency_plan(frequencies)
-    if not isinstance(chunk_size, int) or chunk_size < 1:
+    if chunk_size is not None and (not isinstance(chunk_size, int) or chunk_size < 1):
         raise ValueError(f"`chunk_size` must be a positive integer, got {chunk_size!r}.")
     freqs = None if plan.uniform else _host_float64(frequencies)
     return (_host_float64(points), _host_float64(tx), _host_float64(rx), freqs), plan
@@ -248,7 +337,7 @@ def forward(
     frequencies: Float[Array, " n_freq"],
     *,
     near_field: bool = True,
-    chunk_size: int = DEFAULT_CHUNK,
+    chunk_size: int | None = None,
 ) -> Complex[Array, "n_freq n_tx n_rx"]:
     """The raw (un-normalised) GRT of one viewpoint:
     ``S[f, m, n] = Σ_v ρ_v exp(+j k_f R_b) / R_b²`` (``near_field=False``: no 1/R_b²).
@@ -291,7 +380,7 @@ def adjoint(
     frequencies: Float[Array, " n_freq"],
     *,
     near_field: bool = True,
-    chunk_size: int = DEFAULT_CHUNK,
+    chunk_size: int | None = None,
 ) -> Complex[Array, " n_points"]:
     """Backprojection: the exact conjugate transpose of `forward` in ρ,
     ``ρ̂_v = Σ_{f,m,n} conj(exp(j k_f R_b) A) S[f, m, n]``, so that

@@ -48,7 +48,7 @@ class GRT(eqx.Module):
     azimuth: Float[Array, " n_views"]
     polar: Float[Array, " n_views"]
     points: Float[Array, "n_points 3"]
-    chunk_size: int = eqx.field(static=True, default=_grt.DEFAULT_CHUNK)
+    chunk_size: int | None = eqx.field(static=True, default=None)
 
     @property
     def n_views(self) -> int:
@@ -170,7 +170,7 @@ def grt_operator(
     viewpoints: Viewpoints,
     grid_points: Float[Array, "n_points 3"],
     *,
-    chunk_size: int = _grt.DEFAULT_CHUNK,
+    chunk_size: int | None = None,
 ) -> lx.FunctionLinearOperator:
     """The GRT over ``viewpoints`` as a lineax linear operator.
 
@@ -179,7 +179,7 @@ def grt_operator(
     - `radar`: a `Radar`.
     - `viewpoints`: a `Viewpoints` (the operator's row blocks, in order).
     - `grid_points`: (V, 3) points (metres) on which ρ lives, e.g. ``Scene.points()``.
-    - `chunk_size`: voxels per scan step inside the kernel.
+    - `chunk_size`: voxels per scan step inside the kernel (None: `rift_jax.grt` default).
 
     **Returns:** a `lineax.FunctionLinearOperator` from complex64 ρ of shape (V,) to signals of
     shape (n_views, n_freq, n_tx, n_rx). Its `.fn` is the `GRT` module (row blocks via
@@ -200,7 +200,7 @@ def grt_operator(
         raise ValueError(
             f"grt_operator: `grid_points` must have shape (V, 3) with V ≥ 1, got {points.shape}."
         )
-    if not isinstance(chunk_size, int) or chunk_size < 1:
+    if chunk_size is not None and (not isinstance(chunk_size, int) or chunk_size < 1):
         raise ValueError(
             f"grt_operator: `chunk_size` must be a positive integer, got {chunk_size!r}."
         )
