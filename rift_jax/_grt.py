@@ -7,25 +7,26 @@ with k_f = 2π f / c0, A = 1/R² in the near field and A = 1 in the far field.
 Why it is computed the way it is (NOTES.md, "Numbers measured"):
 
 - **float64 geometry.** k·R reaches 10⁴-10⁵ rad, so a float32 distance (ulp ≈ 1e-6 m at
-  10 m) puts 10⁻³ rad of phase error on every term. Distances and phases are computed in
-  float64 (only (n_tx + n_rx)·V distances and ~20 phases each per view), reduced mod 2π, and
-  only then cast to float32: all the heavy work stays complex64 and accurate to ~1e-6.
+  10 m) puts 10⁻³ rad of phase error on every term. Distances and the few phases per distance
+  are computed in float64 and reduced there (to a quadrant and a remainder |t| ≤ π/4); only the
+  remainder is cast to float32. All heavy work is float32 and accurate to ~1e-6.
 - **Separable exponential.** exp(j k (r_t + r_r)) = exp(j k r_t) · exp(j k r_r), so for each
-  frequency S_f = X_f · Y_fᵀ with X_f[m, v] = ρ_v a_vm exp(j k_f r_vm): a batch of small complex
-  matrix products, 100·n_tx·n_rx·V multiply-adds per view.
+  frequency S_f = X_f · Y_fᵀ with X_f[m, v] = ρ_v a_vm exp(j k_f r_vm): a batch of small matrix
+  products, 100·n_tx·n_rx·V complex multiply-adds per view.
 - **Separable amplitude.** 1/(r_t + r_r)² = 1/(4 r_t r_r) · 1/(1 + q), q = (r_t - r_r)²/(4 r_t r_r).
   The array spans 2.3 cm, so q ≤ 2.7e-6 for a voxel 10 m away (1.5e-4 at the 10 m scene's
   nearest corner, 1.3 m from the array); measured relative error of S for random scenes is
   ~1e-6. The kernel uses 1/(4 r_t r_r) = (1/2r_t)(1/2r_r).
-- **Frequency ladder.** On a uniform grid f = f_0 + (aB + b)Δf, so exp(j k_f r) =
-  exp(j k_{aB} r) · exp(j b Δk r): B + ⌈F/B⌉ ≈ 2√F phase evaluations per distance instead of F.
-  Each factor is exact to float32 rounding; their product to ~2 ulp. Non-uniform frequency
-  grids (or frequencies that are traced) take the direct path: F phases per distance.
+- **Frequency ladder.** On a uniform grid f = f_0 + (iB + j)Δf, so exp(j k_f r) =
+  [exp(j k_0 r) · exp(j B Δk r)^i] · exp(j Δk r)^j: three phasors per distance, powers by
+  doubling, and one product per frequency. Non-uniform grids (or traced frequencies) take the
+  direct path: F phasors per distance.
 - **Voxel chunks.** Voxels are processed ``chunk_size`` at a time in a ``lax.scan``, so memory
   is O(F·(n_tx + n_rx)·chunk) whatever V is.
 - **Split real arithmetic.** XLA:CPU vectorises float32 far better than complex64, and its
   real batched matrix products are ~2x faster than complex ones: phasors are (re, im) pairs,
   and each frequency's product is one real (2·n_tx × K)·(K × 2·n_rx) product.
+- **Materialised stages** (CPU): see `_materialise`.
 
 ``adjoint`` is the exact conjugate transpose of ``forward``: the same phasors, conjugated,
 contracted in the other order. Autodiff through ``forward`` gives the same numbers (tested).
@@ -139,7 +140,8 @@ def _materialise(fn, flag, *args):
     """``fn(*args)`` evaluated into buffers of its own. XLA:CPU drops ``optimization_barrier``
     and would fuse the phasor ladder (sines, cosines, products) into every element of the
     outer product, recomputing it 100-fold; it never fuses across a conditional. ``flag`` is
-    always true but computed from per-chunk data, so the compiler cannot fold it away.
+    always true but computed from per-chunk data, so the compiler cannot fold it away (the
+    untaken branch, zeros, exists only to give the conditional a second arm).
     Accelerators recompute cheaply and pay for conditionals: there, ``fn`` runs inline."""
     if jax.default_backend() != "cpu":
         return fn(*args)
@@ -164,7 +166,8 @@ def _factors(points, tx, rx, plan: FrequencyPlan, frequencies, near_field, real_
     doubling (≤ 2 log2 √F complex roundings: ~1e-6 rad). Otherwise coarse holds every
     frequency and fine is 1.
     """
-    flag = jnp.isfinite(points[0, 0])
+    first = points[0, 0]
+    flag = (first == first) | jnp.isnan(first)  # true even for NaN: never silently drop a chunk
     n_coarse, n_fine = _ladder_sizes(plan.n)
 
     def phasors(points, tx, rx, rho):

@@ -187,3 +187,14 @@ def test_adjoint_rejects_wrong_signal_shape():
     tx, rx = rj.antenna_positions(radar, 0.1, 0.2)
     with pytest.raises(ValueError, match="signal"):
         grt.adjoint(np.zeros((5, 3)), np.ones((3, 2, 3)), tx, rx, radar.frequencies)
+
+
+def test_non_finite_points_under_jit_propagate_instead_of_vanishing():
+    """Inside a trace values cannot be checked; a NaN point must then poison S, not be skipped."""
+    radar = rj.Radar(n_frequencies=4, n_tx=2, n_rx=2)
+    tx, rx = rj.antenna_positions(radar, 0.1, 0.2)
+    points = np.zeros((5, 3), np.float32)
+    points[0, 0] = np.nan
+    rho = jnp.ones(5, jnp.complex64)
+    s = jax.jit(lambda p: grt.forward(p, rho, tx, rx, radar.frequencies))(points)
+    assert np.isnan(np.asarray(s)).all()
