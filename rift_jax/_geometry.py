@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._validation import as_finite_array, check_positive
+from ._validation import as_finite_array, check_positive, is_concrete
 
 C0 = 299_792_458.0
 """Speed of light in vacuum (m/s)."""
@@ -186,17 +186,22 @@ def antenna_positions(
     a one-sided L starting at c, both arms perpendicular to c (paper Eqs. 9-11).
 
     Computed in float64 (phases k·R reach 10⁴-10⁵ rad, so positions must be exact to well
-    below a micrometre); jit- and vmap-able over the angles.
+    below a micrometre). Concrete angles give NumPy float64 arrays (usable whether or not
+    x64 is on); traced angles (jit, vmap) give float64 JAX values inside the trace.
     """
+    if is_concrete((azimuth, polar)):
+        return _antenna_positions(radar, np.float64(azimuth), np.float64(polar), np)
     with jax.enable_x64(True):
-        a = jnp.asarray(azimuth, jnp.float64)
-        p = jnp.asarray(polar, jnp.float64)
-        sa, ca, sp, cp = jnp.sin(a), jnp.cos(a), jnp.sin(p), jnp.cos(p)
-        centre = radar.distance * jnp.stack([sp * ca, sp * sa, cp])
-        u_t = jnp.stack([-cp * ca, -cp * sa, sp])
-        u_r = jnp.stack([-sa, ca, jnp.zeros_like(a)])
-        m = radar.spacing * (jnp.arange(radar.n_tx, dtype=jnp.float64) + 0.5)
-        n = radar.spacing * (jnp.arange(radar.n_rx, dtype=jnp.float64) + 0.5)
-        tx = centre + m[:, None] * u_t
-        rx = centre + n[:, None] * u_r
-    return tx, rx
+        azimuth, polar = jnp.asarray(azimuth, jnp.float64), jnp.asarray(polar, jnp.float64)
+        return _antenna_positions(radar, azimuth, polar, jnp)
+
+
+def _antenna_positions(radar: Radar, a, p, xp):
+    """The geometry once, for NumPy (host) or jax.numpy (traced, inside x64) as ``xp``."""
+    sa, ca, sp, cp = xp.sin(a), xp.cos(a), xp.sin(p), xp.cos(p)
+    centre = radar.distance * xp.stack([sp * ca, sp * sa, cp])
+    u_t = xp.stack([-cp * ca, -cp * sa, sp])
+    u_r = xp.stack([-sa, ca, xp.zeros_like(a)])
+    m = radar.spacing * (xp.arange(radar.n_tx, dtype=xp.float64) + 0.5)
+    n = radar.spacing * (xp.arange(radar.n_rx, dtype=xp.float64) + 0.5)
+    return centre + m[:, None] * u_t, centre + n[:, None] * u_r

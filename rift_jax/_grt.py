@@ -43,6 +43,7 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from ._geometry import C0
+from ._precision import Float64Pair, as_geometry, leading, to_float64
 from ._validation import check_finite, is_concrete
 
 _TWO_PI = 2.0 * math.pi
@@ -128,10 +129,10 @@ def _ladder_sizes(n: int) -> tuple[int, int]:
     return -(-n // n_fine), n_fine
 
 
-def _distances(points: Array, antennas: Array) -> Float[Array, "a v"]:
+def _distances(points, antennas) -> Float[Array, "a v"]:
     """|x_v - antenna_a| in float64 (call inside ``jax.enable_x64``). Written elementwise: XLA
     turns a reduction over the size-3 axis into a slow library call."""
-    p, a = points.astype(jnp.float64), antennas.astype(jnp.float64)
+    p, a = to_float64(points), to_float64(antennas)
     d = [p[None, :, i] - a[:, None, i] for i in range(3)]
     return jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
 
@@ -166,7 +167,7 @@ def _factors(points, tx, rx, plan: FrequencyPlan, frequencies, near_field, real_
     doubling (≤ 2 log2 √F complex roundings: ~1e-6 rad). Otherwise coarse holds every
     frequency and fine is 1.
     """
-    first = points[0, 0]
+    first = jax.tree.leaves(points)[0][0, 0]
     flag = (first == first) | jnp.isnan(first)  # true even for NaN: never silently drop a chunk
     n_coarse, n_fine = _ladder_sizes(plan.n)
 
@@ -181,7 +182,7 @@ def _factors(points, tx, rx, plan: FrequencyPlan, frequencies, near_field, real_
                     base = _cis(k0, r, real_dtype)
                     steps = (_cis(dk, r, real_dtype), _cis(dk * n_fine, r, real_dtype))
                 else:
-                    k = _TWO_PI / C0 * jnp.asarray(frequencies, jnp.float64)
+                    k = _TWO_PI / C0 * to_float64(frequencies)
                     base, steps = _cis(k[:, None, None], r, real_dtype), None
                 if amplitude is not None:
                     base = (base[0] * amplitude, base[1] * amplitude)
@@ -213,12 +214,16 @@ def _stack_frequencies(coarse, fine, n: int) -> Float[Array, "f 2a k"]:
     return x.reshape((-1,) + x.shape[2:])[:n]
 
 
-def _chunked(x: Array, chunk: int) -> Array:
-    """Split the leading (voxel) axis into chunks of ``chunk``, zero-padding the last one
-    (padded points sit at the origin and carry ρ = 0)."""
-    n_chunks = -(-x.shape[0] // chunk)
-    x = jnp.pad(x, ((0, n_chunks * chunk - x.shape[0]),) + ((0, 0),) * (x.ndim - 1))
-    return x.reshape((n_chunks, chunk) + x.shape[1:])
+def _chunked(x, chunk: int):
+    """Split the leading (voxel) axis of an array or pair into chunks of ``chunk``, zero-padding
+    the last one (padded points sit at the origin and carry ρ = 0)."""
+
+    def one(x):
+        n_chunks = -(-x.shape[0] // chunk)
+        x = jnp.pad(x, ((0, n_chunks * chunk - x.shape[0]),) + ((0, 0),) * (x.ndim - 1))
+        return x.reshape((n_chunks, chunk) + x.shape[1:])
+
+    return jax.tree.map(one, x)
 
 
 def default_chunk(adjoint: bool = False) -> int:
@@ -256,7 +261,7 @@ def _forward_kernel(points, tx, rx, frequencies, rho, *, plan, near_field, chunk
     chunk by chunk instead of storing F·(n_tx + n_rx)·V of them.
     """
     real_dtype = jnp.finfo(rho.dtype).dtype
-    chunk = chunk_length(points.shape[0], chunk or default_chunk())
+    chunk = chunk_length(leading(points), chunk or default_chunk())
     n_tx, n_rx = tx.shape[0], rx.shape[0]
 
     @jax.checkpoint
@@ -271,7 +276,7 @@ def _forward_kernel(points, tx, rx, frequencies, rho, *, plan, near_field, chunk
     def step(total, xs):
         return total + partial_sum(*xs), None
 
-    zero = _zeros((plan.n, 2 * n_tx, 2 * n_rx), real_dtype, tx, rx, rho)
+    zero = _zeros((plan.n, 2 * n_tx, 2 * n_rx), real_dtype, *jax.tree.leaves((tx, rx, rho)))
     total, _ = jax.lax.scan(step, zero, (_chunked(points, chunk), _chunked(rho, chunk)))
     re = total[:, :n_tx, :n_rx] - total[:, n_tx:, n_rx:]
     im = total[:, :n_tx, n_rx:] + total[:, n_tx:, :n_rx]
@@ -282,7 +287,7 @@ def _adjoint_kernel(points, tx, rx, frequencies, signal, *, plan, near_field, ch
     """ρ̂_v = Σ_{f,m,n} conj(X[f,m,v] Y[f,n,v]) S[f,m,n], chunk by chunk: T = S·conj(Y) as
     one real batched product [[Sr, Si], [Si, -Sr]]·[Yr; Yi] = [Tr; Ti], then Σ_{f,m} conj(X)·T."""
     real_dtype = jnp.finfo(signal.dtype).dtype
-    n = points.shape[0]
+    n = leading(points)
     chunk = chunk_length(n, chunk or default_chunk(adjoint=True))
     n_tx = tx.shape[0]
     sr, si = jnp.real(signal), jnp.imag(signal)
@@ -308,19 +313,10 @@ def _complex_dtype(x) -> np.dtype:
 
 def _check_geometry(points, tx, rx) -> None:
     for name, arr in (("points", points), ("tx", tx), ("rx", rx)):
-        shape = jnp.shape(arr)
+        shape = arr.shape if isinstance(arr, Float64Pair) else jnp.shape(arr)
         if len(shape) != 2 or shape[1] != 3 or shape[0] == 0:
             raise ValueError(f"`{name}` must have shape (n, 3) with n ≥ 1 (metres), got {shape}.")
         check_finite(arr, f"`{name}`")
-
-
-def _host_float64(x):
-    """Host values (NumPy, lists) stay float64 (converted inside the x64 block); traced or
-    device arrays keep their dtype. Positions and frequencies need every bit: k·R ~ 10⁵ rad."""
-    if isinstance(x, np.ndarray | list | tuple):
-        with jax.enable_x64(True):
-            return jnp.asarray(x, jnp.float64)
-    return jnp.asarray(x)
 
 
 def _prepare(points, tx, rx, frequencies, chunk_size):
@@ -328,8 +324,8 @@ def _prepare(points, tx, rx, frequencies, chunk_size):
     plan = frequency_plan(frequencies)
     if chunk_size is not None and (not isinstance(chunk_size, int) or chunk_size < 1):
         raise ValueError(f"`chunk_size` must be a positive integer, got {chunk_size!r}.")
-    freqs = None if plan.uniform else _host_float64(frequencies)
-    return (_host_float64(points), _host_float64(tx), _host_float64(rx), freqs), plan
+    freqs = None if plan.uniform else as_geometry(frequencies)
+    return (as_geometry(points), as_geometry(tx), as_geometry(rx), freqs), plan
 
 
 def forward(
@@ -350,8 +346,9 @@ def forward(
     - `points`: voxel positions (metres), shape (V, 3).
     - `reflectivity`: complex ρ at those points, shape (V,). Its precision sets the work's:
       complex64 by default (complex128 when x64 is enabled and ρ is complex128).
-    - `tx`, `rx`: antenna positions (metres), e.g. from `antenna_positions`. NumPy float64
-      inputs are used at full precision; geometry is always evaluated in float64.
+    - `tx`, `rx`: antenna positions (metres), e.g. from `antenna_positions`. Host (NumPy)
+      inputs keep full float64 precision whether or not x64 is on; float32 device arrays and
+      traced values are taken as they are. Geometry is always evaluated in float64.
     - `frequencies`: Hz, 1-D. A uniform grid known at trace time takes the fast ladder.
     - `near_field`: include the 1/R_b² spreading factor.
     - `chunk_size`: voxels per scan step (memory/speed trade-off; results do not depend on it).
@@ -363,9 +360,9 @@ def forward(
     """
     (points, tx, rx, freqs), plan = _prepare(points, tx, rx, frequencies, chunk_size)
     reflectivity = jnp.asarray(reflectivity)
-    if reflectivity.shape != (points.shape[0],):
+    if reflectivity.shape != (leading(points),):
         raise ValueError(
-            f"`reflectivity` must have shape ({points.shape[0]},) to match `points`, got "
+            f"`reflectivity` must have shape ({leading(points)},) to match `points`, got "
             f"{reflectivity.shape}."
         )
     check_finite(reflectivity, "`reflectivity`")

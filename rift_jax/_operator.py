@@ -25,7 +25,8 @@ from jaxtyping import Array, Complex, Float
 
 from . import _grt
 from ._geometry import Radar, Viewpoints, antenna_positions
-from ._validation import as_finite_array
+from ._precision import Float64Pair, leading, split, to_float64
+from ._validation import as_finite_array, is_concrete
 
 
 def _views_per_batch() -> int:
@@ -39,42 +40,48 @@ class GRT(eqx.Module):
 
     ``GRT(ρ)[i] = grt.forward(points, ρ, *antenna_positions(radar, az_i, pol_i), freqs)``,
     shape (n_views, n_freq, n_tx, n_rx); `adjoint` is its exact conjugate transpose.
-    Viewpoint angles and points are array leaves (float32 by default: a rounding of the
-    geometry that is used consistently everywhere; distances and phases are then computed in
-    float64, see `rift_jax.grt`).
+    Viewpoint angles and points are array leaves held as float32 (hi, lo) pairs, so they keep
+    float64 precision without x64 (`rift_jax._precision`); distances and phases are computed
+    in float64, see `rift_jax.grt`.
     """
 
     radar: Radar = eqx.field(static=True)
-    azimuth: Float[Array, " n_views"]
-    polar: Float[Array, " n_views"]
-    points: Float[Array, "n_points 3"]
+    azimuth: Float64Pair
+    polar: Float64Pair
+    points: Float64Pair
     chunk_size: int | None = eqx.field(static=True, default=None)
 
     @property
     def n_views(self) -> int:
-        return self.azimuth.shape[0]
+        return leading(self.azimuth)
 
     @property
     def n_points(self) -> int:
-        return self.points.shape[0]
+        return leading(self.points)
 
     @property
     def out_shape(self) -> tuple[int, int, int, int]:
         return (self.n_views, *self.radar.signal_shape)
 
     def _geometry(self, azimuth, polar):
-        tx, rx = antenna_positions(self.radar, azimuth, polar)
+        with jax.enable_x64(True):
+            tx, rx = antenna_positions(self.radar, to_float64(azimuth), to_float64(polar))
         return self.points, tx, rx, self.radar.frequencies
+
+    def _angles(self, index):
+        if is_concrete(index) and not -self.n_views <= int(index) < self.n_views:
+            raise ValueError(f"GRT: view `index` {index} out of range for {self.n_views} views.")
+        return jax.tree.map(lambda a: a[index], (self.azimuth, self.polar))
 
     def view(self, rho: Complex[Array, " n_points"], index) -> Complex[Array, "f m n"]:
         """The signal of viewpoint ``index`` (may be traced): one row block of the operator."""
         rho = jnp.asarray(rho, jnp.complex64)
-        return self._kernel(_grt._forward_kernel, rho, self.azimuth[index], self.polar[index])
+        return self._kernel(_grt._forward_kernel, rho, *self._angles(index))
 
     def view_adjoint(self, signal: Complex[Array, "f m n"], index) -> Complex[Array, " n_points"]:
         """Backprojection of one viewpoint's signal: the adjoint of `view`."""
         signal = jnp.asarray(signal, jnp.complex64)
-        return self._kernel(_grt._adjoint_kernel, signal, self.azimuth[index], self.polar[index])
+        return self._kernel(_grt._adjoint_kernel, signal, *self._angles(index))
 
     def __call__(self, rho: Complex[Array, " n_points"]) -> Complex[Array, "v f m n"]:
         """All viewpoints' signals, (n_views, n_freq, n_tx, n_rx)."""
@@ -105,8 +112,9 @@ class GRT(eqx.Module):
                 a, p, s = xs
                 return acc + self._kernel(_grt._adjoint_kernel, s, a, p), None
 
-            zero = jnp.zeros((self.n_points,), signal.dtype)
-            return jax.lax.scan(step, _varying(zero), (azimuth, polar, signal))[0]
+            leaves = jax.tree.leaves((azimuth, polar))  # per-device inside shard_map
+            zero = _grt._zeros((self.n_points,), signal.dtype, *leaves)
+            return jax.lax.scan(step, zero, (azimuth, polar, signal))[0]
 
         return _over_views(local, self.azimuth, self.polar, signal, reduce=True)
 
@@ -127,14 +135,6 @@ class GRT(eqx.Module):
 _AXIS = "views"
 
 
-def _varying(x):
-    """Mark a replicated value as per-device inside `shard_map` (for scan carries)."""
-    try:
-        return jax.lax.pcast(x, _AXIS, to="varying")
-    except NameError:  # not inside shard_map: nothing to mark
-        return x
-
-
 def _over_views(local, azimuth, polar, data, *, reduce: bool):
     """Run ``local(azimuth, polar, data)`` on shards of the viewpoints, one per device.
 
@@ -144,12 +144,11 @@ def _over_views(local, azimuth, polar, data, *, reduce: bool):
     """
     devices = jax.devices()
     n_dev = len(devices)
-    n_views = azimuth.shape[0]
+    n_views = leading(azimuth)
     if n_dev == 1 or n_views < n_dev:
         return local(azimuth, polar, data)
     pad = -n_views % n_dev
-    azimuth = jnp.pad(azimuth, (0, pad))
-    polar = jnp.pad(polar, (0, pad))
+    azimuth, polar = jax.tree.map(lambda a: jnp.pad(a, (0, pad)), (azimuth, polar))
     mesh = jax.make_mesh((n_dev,), (_AXIS,), devices=devices, axis_types=(AxisType.Auto,))
     if reduce:
         data = jnp.pad(data, ((0, pad),) + ((0, 0),) * (data.ndim - 1))
@@ -204,13 +203,7 @@ def grt_operator(
         raise ValueError(
             f"grt_operator: `chunk_size` must be a positive integer, got {chunk_size!r}."
         )
-    fn = GRT(
-        radar,
-        jnp.asarray(viewpoints.azimuth, jnp.float32),
-        jnp.asarray(viewpoints.polar, jnp.float32),
-        jnp.asarray(points, jnp.float32),
-        chunk_size,
-    )
+    fn = GRT(radar, split(viewpoints.azimuth), split(viewpoints.polar), split(points), chunk_size)
     structure = jax.ShapeDtypeStruct((points.shape[0],), jnp.complex64)
     # No closure conversion: `fn` is already a pytree (a `GRT` module), and keeping it as one
     # lets solvers reach the row blocks through `operator.fn`.

@@ -29,13 +29,29 @@ def test_is_a_lineax_operator_matching_the_reference(problem):
     assert op.out_structure().shape == (9, 20, 6, 5)
     rho = random_complex(rng, len(points))
     signal = eqx.filter_jit(op.mv)(jnp.asarray(rho))
-    pts32 = np.asarray(op.fn.points, np.float64)  # the float32-rounded points the operator uses
+    # Against the nominal float64 geometry: the operator must not round points or angles.
     for i in (0, 4, 8):
-        az, pol = np.float32(viewpoints.azimuth[i]), np.float32(viewpoints.polar[i])
+        az, pol = viewpoints.azimuth[i], viewpoints.polar[i]
         tx, rx = reference.antenna_positions(radar.distance, radar.spacing, 6, 5, az, pol)
-        expected = reference.forward(pts32, rho, tx, rx, radar.frequencies)
+        expected = reference.forward(points, rho, tx, rx, radar.frequencies)
         assert relative_error(signal[i], expected) < 1e-5
         assert relative_error(op.fn.view(rho, i), expected) < 1e-5
+    with pytest.raises(ValueError, match="index"):
+        op.fn.view(rho, 9)
+
+
+def test_far_field_operator_at_50_m(rng):
+    radar = rj.Radar(n_frequencies=20, n_tx=6, n_rx=5, distance=50.0, near_field=False)
+    viewpoints = rj.Viewpoints.grid(2, 2, (0.1 * np.pi, 0.3 * np.pi), (0.1 * np.pi, 0.3 * np.pi))
+    points = rj.scenes.weak_target(0.5, granularity=0.24).occupied()[0]
+    op = rj.grt_operator(radar, viewpoints, points)
+    rho = random_complex(rng, len(points))
+    signal = eqx.filter_jit(op.mv)(jnp.asarray(rho))
+    for i in range(4):
+        az, pol = viewpoints.azimuth[i], viewpoints.polar[i]
+        tx, rx = reference.antenna_positions(50.0, radar.spacing, 6, 5, az, pol)
+        expected = reference.forward(points, rho, tx, rx, radar.frequencies, near_field=False)
+        assert relative_error(signal[i], expected) < 1e-5
 
 
 def test_adjoint_transpose_and_gradient_agree(problem):
