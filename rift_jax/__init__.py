@@ -38,6 +38,7 @@ from ._geometry import Radar as Radar  # noqa: E402
 from ._geometry import Viewpoints as Viewpoints  # noqa: E402
 from ._geometry import antenna_positions as antenna_positions  # noqa: E402
 from ._operator import GRT as GRT  # noqa: E402
+from ._operator import GRTOperator as GRTOperator  # noqa: E402
 from ._operator import grt_operator as grt_operator  # noqa: E402
 from ._scenes import Scene as Scene  # noqa: E402
 from ._scenes import grid_points as grid_points  # noqa: E402
