@@ -22,7 +22,7 @@ def _use_every_cpu_core() -> None:
         n = int(wanted) if wanted else len(_os.sched_getaffinity(0))
     except (ValueError, AttributeError):
         n = _os.cpu_count() or 1
-    if n > 1 and jax.config.jax_num_cpu_devices in (-1, 1):
+    if n > 1 and jax.config.jax_num_cpu_devices == -1:  # -1: nobody has chosen
         try:
             jax.config.update("jax_num_cpu_devices", n)
         except RuntimeError:  # JAX's backends are already up: keep what the user has

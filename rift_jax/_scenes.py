@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
-from ._validation import as_finite_array, check_positive
+from ._validation import as_finite_array, check_positive, is_concrete
 
 _TOL = 1e-6  # metres: points on an object's boundary count as inside
 
@@ -64,6 +64,12 @@ class Scene(eqx.Module):
     granularity: float = eqx.field(static=True)
 
     def __check_init__(self):
+        if not hasattr(self.reflectivity, "shape"):
+            raise ValueError("Scene: `reflectivity` must be an array (nx, ny, nz).")
+        if is_concrete(self.reflectivity) and not np.all(
+            np.isfinite(np.asarray(self.reflectivity))
+        ):
+            raise ValueError("Scene: `reflectivity` must be finite; it holds NaN/inf values.")
         shape = self.reflectivity.shape
         n = grid_size(self.extent, self.granularity)
         if shape != (n, n, n):
@@ -217,17 +223,22 @@ def highway(granularity: float = 0.2, *, extent: float = 5.0) -> Scene:
     return _scene_from_boxes(boxes, extent, granularity)
 
 
-def weak_target(ratio: float = 1.0, granularity: float = 0.12, *, extent: float = 3.0) -> Scene:
+def weak_target(
+    ratio: float = 1.0, granularity: float = 0.12, *, extent: float = 3.0, gap: float = 1.2
+) -> Scene:
     """The weak-target study (Section 4.3): two bars 0.72 × 2.4 × 0.48 m (x × y × z) on
-    either side of the y axis with a 1.2 m gap between them (centres at x = ±0.96 m), centred
-    in y and z. The bar at negative x has ρ = 1, the one at positive x has ρ = ``ratio``
-    (paper: 1, 0.5, 0.333, 0.25)."""
+    either side of the y axis, centred in y and z. The bar at negative x has ρ = 1, the one at
+    positive x has ρ = ``ratio`` (paper: 1, 0.5, 0.333, 0.25).
+
+    The paper's "separated by 1.2 m" is read as the gap between the bars' faces (centres at
+    x = ±0.96 m); ``gap=0.48`` gives the other reading, 1.2 m between centres."""
     if not (isinstance(ratio, int | float | np.floating) and 0 < ratio <= 1):
         raise ValueError(
             f"weak_target: `ratio` is the weak bar's reflectivity relative to the strong one, "
             f"in (0, 1]; got {ratio!r} (for a 4:1 contrast pass 0.25)."
         )
+    check_positive("weak_target: `gap`", gap)
     size = (0.72, 2.4, 0.48)
-    offset = 0.6 + size[0] / 2
+    offset = gap / 2 + size[0] / 2
     boxes = [((-offset, 0.0, 0.0), size, 1.0), ((offset, 0.0, 0.0), size, float(ratio))]
     return _scene_from_boxes(boxes, extent, granularity)

@@ -31,10 +31,15 @@ def test_paper_scene_sizes():
     layers = pyramid.sum(axis=(0, 1))
     assert layers[np.isclose(z, -1.0)] == 121 and layers[np.isclose(z, 1.0)] == 1
     assert not layers[z < -1.01].any() and not layers[z > 1.01].any()
+    # Parking lot: ten poles of 12 voxels (2.2 m from z = -1); the cars' centres fall between
+    # grid points, so they cover 4 x 3 x 4 and 6 x 2 x 3 grid points.
+    assert occupied(scenes.parking_lot(g)) == 10 * 12 + 4 * 3 * 4 + 6 * 2 * 3
+    # Highway: 8 poles of 10 voxels, 3 fences 51 x 11, car 5 x 13 x 9 (x, y, z voxels).
+    assert occupied(scenes.highway(g)) == 8 * 10 + 3 * 51 * 11 + 5 * 13 * 9
     for build in (scenes.parking_lot, scenes.highway):
-        scene = build(g)
-        assert scene.shape == (51,) * 3 and occupied(scene) > 100
-        assert np.abs(np.asarray(scene.reflectivity)).max() == 1
+        rho = np.abs(np.asarray(build(g).reflectivity))
+        z = rj.Scene.empty(5.0, g).axis()
+        assert rho.max() == 1 and not rho[:, :, z < -1.01].any()  # all stand on z = -1
 
 
 def test_weak_target_bars():
@@ -47,7 +52,15 @@ def test_weak_target_bars():
     occupied_x = x[rho.max(axis=(1, 2)) > 0]
     gap = occupied_x[occupied_x > 0].min() - occupied_x[occupied_x < 0].max()
     assert gap == pytest.approx(1.2, abs=1e-6)
-    assert occupied_x.max() - occupied_x[occupied_x > 0].min() == pytest.approx(0.72, abs=1e-6)
+    # Voxel centres span the bar's size: 0.72 m in x, 2.4 m in y, 0.48 m in z.
+    for axis, size in ((0, 0.72), (1, 2.4), (2, 0.48)):
+        other = tuple(a for a in range(3) if a != axis)
+        coords = x[rho.max(axis=other) > 0]
+        span = coords[coords > 0].max() - coords[coords > 0].min() if axis == 0 else np.ptp(coords)
+        assert span == pytest.approx(size, abs=1e-6)
+    centres = scenes.weak_target(1.0, gap=0.48)
+    x_centre = x[np.abs(np.asarray(centres.reflectivity)).max(axis=(1, 2)) > 0]
+    assert x_centre[x_centre > 0].mean() - x_centre[x_centre < 0].mean() == pytest.approx(1.2)
     with pytest.raises(ValueError, match="ratio"):
         scenes.weak_target(4.0)
 
@@ -68,6 +81,8 @@ def test_from_array_and_errors():
     np.testing.assert_allclose(rho, [2.0])
     with pytest.raises(ValueError, match="cube"):
         rj.Scene.from_array(np.zeros((4, 4, 5)), 1.0)
+    with pytest.raises(ValueError, match="finite"):
+        rj.Scene(scene.reflectivity.at[0, 0, 0].set(np.nan), 1.0, 0.2)
     bad = array.copy()
     bad[0, 0, 0] = np.nan
     with pytest.raises(ValueError, match="finite"):
