@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._validation import as_finite_array, check_positive, is_concrete
+from ._validation import as_finite_array, check_positive, check_positive_int, is_concrete
 
 C0 = 299_792_458.0
 """Speed of light in vacuum (m/s)."""
@@ -50,9 +50,7 @@ class Radar:
 
     def __post_init__(self):
         for name in ("n_frequencies", "n_tx", "n_rx"):
-            value = getattr(self, name)
-            if not isinstance(value, int | np.integer) or value < 1:
-                raise ValueError(f"Radar: `{name}` must be a positive integer, got {value!r}.")
+            check_positive_int(f"Radar: `{name}`", getattr(self, name))
         check_positive("Radar: `f_min`", self.f_min)
         check_positive("Radar: `f_max`", self.f_max)
         if self.f_max < self.f_min or (self.n_frequencies > 1 and self.f_max == self.f_min):
@@ -129,10 +127,7 @@ class Viewpoints:
         """The paper's viewpoint grid: ``n_azimuth × n_polar`` uniform samples (endpoints
         included, as ``np.linspace``), azimuth-major. Defaults give the paper's 2,601."""
         for name, n in (("n_azimuth", n_azimuth), ("n_polar", n_polar)):
-            if not isinstance(n, int | np.integer) or n < 1:
-                raise ValueError(
-                    f"Viewpoints.grid: `{name}` must be a positive integer, got {n!r}."
-                )
+            check_positive_int(f"Viewpoints.grid: `{name}`", n)
         az = np.linspace(*azimuth_range, n_azimuth)
         pol = np.linspace(*polar_range, n_polar)
         az, pol = np.meshgrid(az, pol, indexing="ij")

@@ -44,7 +44,7 @@ from jaxtyping import Array, Complex, Float
 
 from ._geometry import C0
 from ._precision import Float64Pair, as_geometry, leading, to_float64
-from ._validation import check_finite, is_concrete
+from ._validation import check_finite, check_positive_int, is_concrete
 
 _TWO_PI = 2.0 * math.pi
 
@@ -322,8 +322,8 @@ def _check_geometry(points, tx, rx) -> None:
 def _prepare(points, tx, rx, frequencies, chunk_size):
     _check_geometry(points, tx, rx)
     plan = frequency_plan(frequencies)
-    if chunk_size is not None and (not isinstance(chunk_size, int) or chunk_size < 1):
-        raise ValueError(f"`chunk_size` must be a positive integer, got {chunk_size!r}.")
+    if chunk_size is not None:
+        check_positive_int("`chunk_size`", chunk_size)
     freqs = None if plan.uniform else as_geometry(frequencies)
     return (as_geometry(points), as_geometry(tx), as_geometry(rx), freqs), plan
 

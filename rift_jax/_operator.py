@@ -26,7 +26,7 @@ from jaxtyping import Array, Complex, Float
 from . import _grt
 from ._geometry import Radar, Viewpoints, antenna_positions
 from ._precision import Float64Pair, leading, split, to_float64
-from ._validation import as_finite_array, is_concrete
+from ._validation import as_finite_array, check_positive_int, is_concrete
 
 
 def _views_per_batch() -> int:
@@ -277,9 +277,7 @@ def grt_operator(
         raise ValueError(
             f"grt_operator: `grid_points` must have shape (V, 3) with V ≥ 1, got {points.shape}."
         )
-    if chunk_size is not None and (not isinstance(chunk_size, int) or chunk_size < 1):
-        raise ValueError(
-            f"grt_operator: `chunk_size` must be a positive integer, got {chunk_size!r}."
-        )
+    if chunk_size is not None:
+        check_positive_int("grt_operator: `chunk_size`", chunk_size)
     fn = GRT(radar, split(viewpoints.azimuth), split(viewpoints.polar), split(points), chunk_size)
     return GRTOperator(fn)

@@ -21,6 +21,12 @@ def check_positive(name: str, value: float) -> None:
         raise ValueError(f"{name} must be a positive finite number, got {value!r}.")
 
 
+def check_positive_int(name: str, value) -> None:
+    """Raise unless ``value`` is a Python or NumPy integer ≥ 1."""
+    if not isinstance(value, int | np.integer) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}.")
+
+
 def as_finite_array(x, name: str, dtype=None) -> np.ndarray:
     """``np.asarray(x, dtype)``, raising if it holds NaN or inf."""
     try:
