@@ -2,7 +2,7 @@
 
 Data's path through the package: geometry (`Radar`, `Viewpoints`, `antenna_positions`) →
 scene (`Scene`, `rift_jax.scenes`) → GRT kernel (`rift_jax.grt`) → operator
-(`grt_operator`) → data (`synthesize`).
+(`grt_operator`) → solvers (`rift_jax.solvers`) → `fit` → metrics (`rift_jax.metrics`).
 """
 
 import os as _os
@@ -32,7 +32,11 @@ def _use_every_cpu_core() -> None:
 _use_every_cpu_core()
 
 from . import grt as grt  # noqa: E402
+from . import metrics as metrics  # noqa: E402
 from . import scenes as scenes  # noqa: E402
+from . import solvers as solvers  # noqa: E402
+from ._fit import FitResult as FitResult  # noqa: E402
+from ._fit import fit as fit  # noqa: E402
 from ._geometry import C0 as C0  # noqa: E402
 from ._geometry import Radar as Radar  # noqa: E402
 from ._geometry import Viewpoints as Viewpoints  # noqa: E402

@@ -142,14 +142,13 @@ def _over_views(local, azimuth, polar, data, *, reduce: bool):
     views included; the caller slices them off). ``reduce=True``: ``data`` is per-view (sharded
     like the angles, zero for padding) and the per-device sums are added together.
     """
-    devices = jax.devices()
-    n_dev = len(devices)
+    n_dev = jax.device_count()
     n_views = leading(azimuth)
     if n_dev == 1 or n_views < n_dev:
         return local(azimuth, polar, data)
     pad = -n_views % n_dev
     azimuth, polar = jax.tree.map(lambda a: jnp.pad(a, (0, pad)), (azimuth, polar))
-    mesh = jax.make_mesh((n_dev,), (_AXIS,), devices=devices, axis_types=(AxisType.Auto,))
+    mesh = device_mesh(_AXIS)
     if reduce:
         data = jnp.pad(data, ((0, pad),) + ((0, 0),) * (data.ndim - 1))
         body = functools.partial(_summed, local)
@@ -158,6 +157,25 @@ def _over_views(local, azimuth, polar, data, *, reduce: bool):
         body = local
         specs, out_spec = (P(_AXIS), P(_AXIS), P()), P(_AXIS)
     return jax.shard_map(body, mesh=mesh, in_specs=specs, out_specs=out_spec)(azimuth, polar, data)
+
+
+def device_mesh(axis: str) -> jax.sharding.Mesh:
+    """A one-axis mesh over every device (one per CPU core on CPU, see `rift_jax/__init__`)."""
+    devices = jax.devices()
+    return jax.make_mesh((len(devices),), (axis,), devices=devices, axis_types=(AxisType.Auto,))
+
+
+def replicated(tree):
+    """``tree``'s arrays copied to every device.
+
+    Pass the inputs of a jitted *loop* around the operator (lineax, optimistix, jaxopt, a
+    `fori_loop`) through this: XLA does not partition a jit whose inputs all sit on one
+    device, and a `shard_map` nested in its loop then fails to compile on CPU ("No
+    registered implementation for ... GlobalToLocalShape").
+    """
+    if jax.device_count() == 1:
+        return tree
+    return jax.device_put(tree, jax.sharding.NamedSharding(device_mesh("replicated"), P()))
 
 
 def _summed(local, azimuth, polar, data):

@@ -1,0 +1,212 @@
+"""`fit`: from a scene (simulated) or measured signals to a reconstructed scene, by any method.
+
+The user-facing entry point. It builds the one GRT operator for the inverse grid, hands it
+to the chosen solver, and wraps the solver's `Solution` in a `FitResult` that knows how to
+predict unseen viewpoints and score itself with the paper's metrics.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import time
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Complex
+
+from . import _metrics, _solvers
+from ._geometry import Radar, Viewpoints
+from ._operator import grt_operator
+from ._scenes import Scene
+from ._solvers import History
+from ._synthesis import RadarData, synthesize
+
+METHODS = {
+    "kaczmarz": _solvers.kaczmarz,
+    "lsmr": _solvers.lsmr,
+    "gauss-newton": _solvers.gauss_newton,
+    "fista": _solvers.fista,
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class FitResult:
+    """A reconstruction and how it was obtained.
+
+    **Fields:**
+
+    - `scene`: the reconstructed `Scene` on the inverse grid. Its reflectivity is in the units
+      of the input scene (for measured signals: of ``signal`` itself).
+    - `history`: per-iteration relative data residual and wall time (`History`).
+    - `seconds`: wall time of the reconstruction, compilation included (not synthesis).
+    - `method`, `options`: what ran, with which options.
+    - `stopped`: why it stopped (see `Solution`).
+    - `radar`, `viewpoints`: the training geometry.
+    - `stats`: solver-specific numbers.
+    """
+
+    scene: Scene
+    history: History
+    seconds: float
+    method: str
+    options: dict[str, Any]
+    stopped: str
+    radar: Radar
+    viewpoints: Viewpoints
+    stats: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    @property
+    def residual(self) -> float:
+        """The last relative data residual the solver recorded (NaN if none)."""
+        return float(self.history.residual[-1]) if len(self.history) else float("nan")
+
+    def predict(self, viewpoints: Viewpoints) -> RadarData:
+        """The reconstruction's signals at ``viewpoints``, normalised like `synthesize`
+        (max |S| = 1)."""
+        return synthesize(self.scene, viewpoints, self.radar)
+
+    def evaluate(
+        self, truth: Scene, test_viewpoints: Viewpoints, *, threshold: float = 0.2
+    ) -> dict[str, float]:
+        """The paper's four metrics against ``truth``: m-SSIM, m-COS, t-IoU (truth resampled
+        to the inverse grid) and p-RMSE of the predicted signals at ``test_viewpoints``
+        against the truth's. Also the recorded data ``residual``."""
+        if not isinstance(truth, Scene):
+            raise ValueError(
+                f"FitResult.evaluate: `truth` must be a rift_jax.Scene, got {type(truth).__name__}."
+            )
+        return {
+            "m_ssim": _metrics.m_ssim(self.scene, truth),
+            "m_cos": _metrics.m_cos(self.scene, truth),
+            "t_iou": _metrics.t_iou(self.scene, truth, threshold=threshold),
+            "p_rmse": _metrics.p_rmse(
+                self.predict(test_viewpoints), synthesize(truth, test_viewpoints, self.radar)
+            ),
+            "residual": self.residual,
+        }
+
+
+def fit(
+    scene_or_signal: Scene | RadarData | Complex[Array, "n_views n_freq n_tx n_rx"],
+    viewpoints: Viewpoints,
+    *,
+    radar: Radar | None = None,
+    method: str = "kaczmarz",
+    granularity: float | None = None,
+    extent: float | None = None,
+    snr_db: float | None = None,
+    seed: int = 0,
+    progress: bool = True,
+    **options,
+) -> FitResult:
+    """Reconstruct a scene from radar signals at ``viewpoints``.
+
+    - Given a `Scene`: its signals at ``viewpoints`` are synthesised on its own grid (the
+      forward grid; with noise if ``snr_db``), and the scene is reconstructed on the inverse
+      grid of ``granularity`` over the same extent (default: twice the scene's granularity,
+      the paper's 0.2 m → 0.4 m).
+    - Given measured signals (a `RadarData`, or a complex array (n_views, n_freq, n_tx, n_rx)
+      in the order of ``viewpoints``): reconstructs on the grid ``±extent`` at
+      ``granularity`` (both required).
+
+    **Arguments:**
+
+    - `scene_or_signal`: a `Scene`, a `RadarData`, or a complex array.
+    - `viewpoints`: a `Viewpoints`, one per signal.
+    - `radar`: a `Radar` (default the paper's; a `RadarData` brings its own).
+    - `method`: ``"kaczmarz"`` (the paper's baseline), ``"lsmr"`` (lineax), ``"gauss-newton"``
+      (optimistix; ``damped=True`` for Levenberg-Marquardt) or ``"fista"`` (jaxopt, sparse).
+    - `granularity`, `extent`: the inverse grid (metres).
+    - `snr_db`: noise added to synthesised signals (Scene input only).
+    - `seed`: seeds noise, Kaczmarz's block order and FISTA's power iteration.
+    - `progress`: show a progress bar on runs longer than two seconds.
+    - `**options`: passed to the solver (``iterations``, ``tol``, ``relaxation``, ...; see
+      `rift_jax.solvers`).
+
+    **Returns:** a `FitResult`.
+    """
+    if method not in METHODS:
+        raise ValueError(f"fit: unknown `method` {method!r}; choose one of {sorted(METHODS)}.")
+    solver = METHODS[method]
+    accepted = set(inspect.signature(solver).parameters) - {"operator", "signal", "progress"}
+    if unknown := set(options) - accepted:
+        raise ValueError(
+            f"fit: method {method!r} takes no option(s) {sorted(unknown)}; it takes "
+            f"{sorted(accepted - {'seed'})}."
+        )
+    if not isinstance(viewpoints, Viewpoints):
+        raise ValueError(
+            f"fit: `viewpoints` must be rift_jax.Viewpoints, got {type(viewpoints).__name__}."
+        )
+    signal, scale, radar, extent, granularity = _data(
+        scene_or_signal, viewpoints, radar, extent, granularity, snr_db, seed
+    )
+    grid = Scene.empty(extent, granularity)
+    operator = grt_operator(radar, viewpoints, grid.points())
+    if "seed" in accepted:
+        options = {"seed": seed, **options}
+    start = time.perf_counter()
+    solution = solver(operator, signal, progress=progress, **options)
+    rho = np.asarray(solution.rho) * scale
+    seconds = time.perf_counter() - start
+    scene = Scene(jnp.asarray(rho.reshape(grid.shape), jnp.complex64), extent, granularity)
+    return FitResult(
+        scene,
+        solution.history,
+        seconds,
+        method,
+        options,
+        solution.stopped,
+        radar,
+        viewpoints,
+        solution.stats,
+    )
+
+
+def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):
+    """(normalised signal, its scale, radar, extent, granularity) for `fit`'s input."""
+    if radar is not None and not isinstance(radar, Radar):
+        raise ValueError(f"fit: `radar` must be a rift_jax.Radar, got {type(radar).__name__}.")
+    if isinstance(data, Scene):
+        if extent is not None and extent != data.extent:
+            raise ValueError(
+                f"fit: `extent` ({extent}) must be left out or equal the scene's ({data.extent})."
+            )
+        data_ = synthesize(data, viewpoints, radar, snr_db=snr_db, seed=seed)
+        granularity = 2 * data.granularity if granularity is None else granularity
+        return data_.signal, data_.scale, data_.radar, data.extent, granularity
+    if snr_db is not None:
+        raise ValueError("fit: `snr_db` applies to a Scene; measured signals carry their noise.")
+    if extent is None or granularity is None:
+        raise ValueError(
+            "fit: given signals rather than a Scene, pass the grid to reconstruct on as "
+            "`extent` (half-width, m) and `granularity` (m)."
+        )
+    if isinstance(data, RadarData):
+        if radar is not None and radar != data.radar:
+            raise ValueError("fit: `radar` differs from the RadarData's own radar.")
+        if len(data.viewpoints) != len(viewpoints):
+            raise ValueError(
+                f"fit: the RadarData has {len(data.viewpoints)} viewpoints but `viewpoints` "
+                f"has {len(viewpoints)}."
+            )
+        return data.signal, data.scale, data.radar, extent, granularity
+    radar = Radar() if radar is None else radar
+    signal = np.asarray(data)
+    if not np.issubdtype(signal.dtype, np.number):
+        raise ValueError(f"fit: the signal must be a complex array, got dtype {signal.dtype}.")
+    expected = (len(viewpoints), *radar.signal_shape)
+    if signal.shape != expected:
+        raise ValueError(
+            f"fit: the signal must have shape {expected} (n_views, n_freq, n_tx, n_rx) for "
+            f"{len(viewpoints)} viewpoints and this radar, got {signal.shape}."
+        )
+    if not np.all(np.isfinite(signal)):
+        raise ValueError(
+            f"fit: the signal must be finite; it holds {np.sum(~np.isfinite(signal))} NaN/inf."
+        )
+    peak = float(np.max(np.abs(signal)))
+    scale = peak if peak > 0 else 1.0  # solvers work on O(1) data; ρ is scaled back
+    return signal / scale, scale, radar, extent, granularity

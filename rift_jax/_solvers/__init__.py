@@ -1,0 +1,12 @@
+"""Least-squares solvers on the shared GRT operator, one module per algorithm.
+
+Each takes the `GRTOperator` from `rift_jax.grt_operator` and the measured signal, and
+returns a `Solution` (ρ on the operator's grid and a per-iteration `History`).
+"""
+
+from ._solution import History as History
+from ._solution import Solution as Solution
+from .kaczmarz import kaczmarz as kaczmarz
+from .linear import lsmr as lsmr
+from .nonlinear import gauss_newton as gauss_newton
+from .sparse import fista as fista

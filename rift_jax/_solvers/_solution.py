@@ -1,0 +1,102 @@
+"""The one result type of every solver, and the loop that drives their jitted steps.
+
+Each solver is a jitted step function (a `lax` loop, an optimistix/jaxopt/lineax step) called
+from a Python loop, so that wall time, progress and early stopping stay on the host, outside
+the compiled code (STYLE.md: "one jitted step").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import numpy as np
+from jaxtyping import Array, Complex
+from tqdm.auto import tqdm
+
+
+@dataclasses.dataclass(frozen=True)
+class History:
+    """Per-iteration record of a run (host float64 arrays, one entry per iteration).
+
+    - `residual`: relative data residual ‖y − Aρ‖ / ‖y‖ as the solver observed it (each
+      solver's docstring says where it is measured).
+    - `seconds`: wall time since the start of the run at the end of each iteration.
+    """
+
+    residual: np.ndarray
+    seconds: np.ndarray
+
+    def __len__(self) -> int:
+        return self.residual.shape[0]
+
+
+@dataclasses.dataclass(frozen=True)
+class Solution:
+    """What every solver returns.
+
+    - `rho`: the reconstructed complex64 reflectivity, (n_points,), on the operator's grid.
+    - `history`: a `History`.
+    - `stopped`: why the run ended: ``"iterations"`` (budget spent), ``"tolerance"``
+      (the residual stopped improving), or ``"zero signal"``.
+    - `stats`: solver-specific numbers (e.g. the step size used).
+    """
+
+    rho: Complex[Array, " n_points"]
+    history: History
+    stopped: str
+    stats: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    @property
+    def seconds(self) -> float:
+        return float(self.history.seconds[-1]) if len(self.history) else 0.0
+
+
+_PATIENCE = 3
+
+
+def iterate(
+    step: Callable[[Any], tuple[Any, Array]],
+    carry: Any,
+    *,
+    iterations: int,
+    tol: float,
+    progress: bool,
+    desc: str,
+) -> tuple[Any, History, str]:
+    """Call ``carry, residual = step(carry)`` up to ``iterations`` times.
+
+    Stops early when the best relative residual of the last three iterations is not lower
+    than the best before them by a factor ``1 - tol``: the run has stagnated (three, not one,
+    because Kaczmarz's and FISTA's residuals are not monotone). ``tol=0`` runs the whole
+    budget.
+    A non-finite residual stops the run with a ValueError naming the iteration. The progress
+    bar appears only for runs longer than two seconds.
+    """
+    residuals, seconds = [], []
+    stopped = "iterations"
+    start = time.perf_counter()
+    with tqdm(total=iterations, desc=desc, disable=not progress, delay=2.0, leave=False) as bar:
+        for k in range(iterations):
+            carry, residual = step(carry)
+            residual = float(jax.block_until_ready(residual))
+            seconds.append(time.perf_counter() - start)
+            if not np.isfinite(residual):
+                raise ValueError(
+                    f"{desc}: the data residual became {residual} at iteration {k + 1}; the "
+                    "iteration diverged (for FISTA, lower the step size)."
+                )
+            residuals.append(residual)
+            bar.set_postfix(residual=f"{residual:.4g}", refresh=False)
+            bar.update()
+            if (
+                tol > 0
+                and k >= _PATIENCE
+                and min(residuals[-_PATIENCE:]) >= (1 - tol) * min(residuals[:-_PATIENCE])
+            ):
+                stopped = "tolerance"
+                break
+    return carry, History(np.asarray(residuals), np.asarray(seconds)), stopped
