@@ -13,8 +13,8 @@ complex matmul rate for reading the times.
 
 Scales (the paper radar throughout: 100 frequencies, 16 x 16 antennas):
 - quick: forward 1.0 m / inverse 2.0 m over ±4 m, LS-10/20, tiny budgets (seconds; tests);
-- default: forward 0.4 m / inverse 0.8 m over ±5 m (V = 13³), budgets that finish in
-  about half an hour on a 2-core CPU;
+- default: forward 0.4 m / inverse 0.8 m over ±5 m (V = 13³), small budgets (each
+  solver a few passes over the data) that finish in about half an hour on a 2-core CPU;
 - paper: forward 0.2 m / inverse 0.4 m (V = 26³), the paper's 100 Kaczmarz sweeps: hours.
 """
 
@@ -76,10 +76,10 @@ SCALES = {
         n_train=(100, 200, 500, 1000),
         n_test=100,
         budgets={
-            "kaczmarz": {"iterations": 5, "tol": 0.0},
-            "lsmr": {"iterations": 15, "check_every": 5, "tol": 0.0},
-            "gauss-newton": {"iterations": 2, "inner": 6, "tol": 0.0},
-            "fista": {"iterations": 15, "power_iterations": 5, "tol": 0.0},
+            "kaczmarz": {"iterations": 3, "tol": 0.0},
+            "lsmr": {"iterations": 10, "check_every": 5, "tol": 0.0},
+            "gauss-newton": {"iterations": 2, "inner": 3, "tol": 0.0},
+            "fista": {"iterations": 8, "power_iterations": 3, "tol": 0.0},
         },
         paper_blocks=16,
     ),
@@ -100,7 +100,9 @@ SCALES = {
 }
 
 
-def run(cfg: Config, seed: int = 0, progress: bool = True) -> dict:
+def run(cfg: Config, seed: int = 0, progress: bool = True, checkpoint=None) -> dict:
+    """Every (LS-n, solver) run of ``cfg``; ``checkpoint(results)`` after each one, so an
+    interrupted benchmark keeps what it measured."""
     radar = rj.Radar()
     scene = rj.scenes.cube(cfg.forward, extent=cfg.extent)
     pool = rj.Viewpoints.grid()
@@ -128,6 +130,8 @@ def run(cfg: Config, seed: int = 0, progress: bool = True) -> dict:
                 "residual": result.history.residual.tolist(),
             }
             print(_row_md(rows[-1]), flush=True)
+            if checkpoint:
+                checkpoint({"rows": rows, "histories": histories})
     return {"rows": rows, "histories": histories}
 
 
@@ -240,29 +244,40 @@ def main(argv=None) -> dict:
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-progress", action="store_true")
+    parser.add_argument("--sizes", type=int, nargs="+", help="LS-n subset (default: scale's)")
+    parser.add_argument("--methods", nargs="+", choices=sorted(SCALES["paper"].budgets))
     args = parser.parse_args(argv)
     cfg = SCALES[args.scale]
+    if args.sizes:
+        cfg = dataclasses.replace(cfg, n_train=tuple(args.sizes))
+    if args.methods:
+        cfg = dataclasses.replace(cfg, budgets={m: cfg.budgets[m] for m in args.methods})
     out = args.out or Path("docs/results") / f"solvers_{args.scale}"
 
     matmul = complex_matmul_rate()
     print(f"complex64 matmul: {matmul:.2f} G/s", flush=True)
     start = time.perf_counter()
-    results = run(cfg, seed=args.seed, progress=not args.no_progress)
+    paper_cost = None
+
+    def write(results):
+        record = {
+            "scale": args.scale,
+            "config": dataclasses.asdict(cfg),
+            "matmul_gflops": matmul,
+            "paper_kaczmarz_cost": paper_cost,
+            "total_seconds": time.perf_counter() - start,
+            "versions": {"rift_jax": rj.__version__, "python": sys.version.split()[0]},
+            **results,
+        }
+        write_atomic(out / "solvers.md", report(cfg, args.scale, results, matmul, paper_cost))
+        write_json(out / "solvers.json", json.loads(json.dumps(record, default=float)))
+        plot(results, out / "solvers.png")
+        return record
+
+    results = run(cfg, seed=args.seed, progress=not args.no_progress, checkpoint=write)
     paper_cost = paper_kaczmarz_cost(cfg.paper_blocks, args.seed) if cfg.paper_blocks else None
-    text = report(cfg, args.scale, results, matmul, paper_cost)
-    record = {
-        "scale": args.scale,
-        "config": dataclasses.asdict(cfg),
-        "matmul_gflops": matmul,
-        "paper_kaczmarz_cost": paper_cost,
-        "total_seconds": time.perf_counter() - start,
-        "versions": {"rift_jax": rj.__version__, "python": sys.version.split()[0]},
-        **results,
-    }
-    write_atomic(out / "solvers.md", text)
-    write_json(out / "solvers.json", json.loads(json.dumps(record, default=float)))
-    plot(results, out / "solvers.png")
-    print(text)
+    record = write(results)
+    print(report(cfg, args.scale, results, matmul, paper_cost))
     print(f"wrote {out}/solvers.md, solvers.json, solvers.png")
     return record
 

@@ -36,9 +36,10 @@ def _as_scene(x, extent: float, name: str) -> Scene:
     if isinstance(x, Scene):
         return x
     arr = np.asarray(x)
-    if arr.ndim != 3 or len(set(arr.shape)) != 1 or arr.shape[0] < 2:
+    if arr.ndim != 3 or len(set(arr.shape)) != 1 or arr.shape[0] < 3:
         raise ValueError(
-            f"{name} must be a Scene or a cubic (n, n, n) array, got shape {arr.shape}."
+            f"{name} must be a Scene or a cubic (n, n, n) array with at least 3 points per "
+            f"axis, got shape {arr.shape}."
         )
     return Scene.from_array(arr, extent)
 
@@ -64,10 +65,8 @@ def m_ssim(pred, truth) -> float:
     **Returns:** m-SSIM in [-1, 1]; 1 for identical magnitudes.
     """
     p, t = _magnitudes(pred, truth, "m_ssim")
-    side = p.shape[0]
+    side = p.shape[0]  # ≥ 3 (a Scene's grid has ≥ 3 points per axis)
     win_size = min(7, side if side % 2 else side - 1)
-    if win_size < 3:
-        raise ValueError(f"m_ssim: the grid must have at least 3 points per axis, got {side}.")
     return float(
         np.mean(
             [
@@ -104,7 +103,7 @@ def t_iou(pred, truth, *, threshold: float = 0.2) -> float:
 
 
 def p_rmse(pred_signal, true_signal) -> float:
-    """RMSE, in radians, of the wrapped phase difference ``angle(p · conj(t))`` ∈ (-π, π] over
+    """RMSE, in radians, of the wrapped phase difference ``angle(p) − angle(t)`` ∈ [-π, π) over
     every sample (viewpoint, frequency, TX, RX) of the given signals.
 
     Use it on viewpoints that were not fitted. Magnitudes and a common scale do not enter;
@@ -124,5 +123,6 @@ def p_rmse(pred_signal, true_signal) -> float:
         raise ValueError(
             f"p_rmse: signals must have one non-empty shape, got {p.shape} and {t.shape}."
         )
-    phase = np.angle(p.astype(np.complex128) * np.conj(t.astype(np.complex128)))
+    difference = np.angle(p.astype(np.complex128)) - np.angle(t.astype(np.complex128))
+    phase = (difference + np.pi) % (2 * np.pi) - np.pi
     return float(np.sqrt(np.mean(phase**2)))

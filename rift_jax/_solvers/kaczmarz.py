@@ -73,13 +73,13 @@ def kaczmarz(
     points = Float64Pair(*(jnp.pad(a, ((0, pad), (0, 0)), mode="edge") for a in fn.points))
     mask = jnp.arange(n_points + pad) < n_points  # padding voxels never move
     x = jnp.pad(x, (0, pad))
-    sweep = _sweep(fn, n_dev)
     norm = jnp.linalg.norm(signal)
     rng = np.random.default_rng(seed)
     lam = jnp.float32(relaxation)
 
     def step(x):
-        x, squares = sweep(points, mask, x, signal, jnp.asarray(rng.permutation(fn.n_views)), lam)
+        order = jnp.asarray(rng.permutation(fn.n_views))
+        x, squares = _sweep(fn, points, mask, x, signal, order, lam)
         return x, relative(jnp.sqrt(squares), norm)
 
     x, history, stopped = iterate(
@@ -88,9 +88,12 @@ def kaczmarz(
     return Solution(x[:n_points], history, stopped, {"relaxation": relaxation})
 
 
-def _sweep(fn: GRT, n_dev: int):
-    """The jitted sweep: ``(points, mask, ρ, y, order, λ) -> (ρ, Σ_b ‖r_b‖²)``, with the
-    voxels (points, mask, ρ) split over ``n_dev`` devices."""
+@eqx.filter_jit
+def _sweep(fn: GRT, points, mask, x, signal, order, lam):
+    """One sweep, ``-> (ρ, Σ_b ‖r_b‖²)``, with the voxels (points, mask, ρ) split over the
+    devices. Module-level and jitted on its arguments, so repeated runs of one problem size
+    compile once."""
+    n_dev = jax.device_count()
 
     def body(points, mask, x, signal, order, lam):
         local = eqx.tree_at(lambda f: f.points, fn, points)
@@ -110,12 +113,11 @@ def _sweep(fn: GRT, n_dev: int):
         return jax.lax.fori_loop(0, order.shape[0], block, (x, jnp.zeros((), jnp.float32)))
 
     if n_dev == 1:
-        return eqx.filter_jit(body)
+        return body(points, mask, x, signal, order, lam)
     voxels = P(_AXIS)
-    sharded = jax.shard_map(
+    return jax.shard_map(
         body,
         mesh=device_mesh(_AXIS),
         in_specs=(Float64Pair(voxels, voxels), voxels, voxels, P(), P(), P()),
         out_specs=(voxels, P()),
-    )
-    return jax.jit(sharded)
+    )(points, mask, x, signal, order, lam)

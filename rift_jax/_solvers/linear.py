@@ -50,19 +50,22 @@ def lsmr(
     if (solution := zero_signal("lsmr", signal, x)) is not None:
         return solution
     steps = min(check_every, iterations)
-    solver = lx.LSMR(rtol=0.0, atol=0.0, max_steps=steps)
     norm = jnp.linalg.norm(signal)
 
-    @eqx.filter_jit
-    def segment(operator, signal, x):
-        solution = lx.linear_solve(operator, signal, solver, options={"y0": x}, throw=False)
-        return solution.value, solution.stats["norm_r"]
-
     def step(x):
-        x, norm_r = segment(operator, signal, x)
+        x, norm_r = _segment(operator, signal, x, steps)
         return x, relative(norm_r, norm)
 
     x, history, stopped = iterate(
         step, x, iterations=-(-iterations // steps), tol=tol, progress=progress, desc="lsmr"
     )
     return Solution(x, history, stopped, {"check_every": steps})
+
+
+@eqx.filter_jit
+def _segment(operator: GRTOperator, signal, x, steps: int):
+    """``steps`` LSMR steps from ``x``: (new x, ‖y − Ax‖). Module-level, so repeated runs of
+    one problem size compile once."""
+    solver = lx.LSMR(rtol=0.0, atol=0.0, max_steps=steps)  # no tolerance: always `steps`
+    solution = lx.linear_solve(operator, signal, solver, options={"y0": x}, throw=False)
+    return solution.value, solution.stats["norm_r"]

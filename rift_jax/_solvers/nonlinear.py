@@ -57,14 +57,18 @@ def gauss_newton(
     check_positive_int(f"{where}: `inner`", inner)
     if (solution := zero_signal(where, signal, x)) is not None:
         return solution
-    linear_solver = lx.LSMR(rtol=0.0, atol=0.0, max_steps=inner)  # always `inner` steps
+    linear_solver = lx.LSMR(rtol=0.0, atol=0.0, max_steps=inner)  # no tolerance: `inner` steps
     kind = optx.LevenbergMarquardt if damped else optx.GaussNewton
     solver = kind(rtol=0.0, atol=0.0, linear_solver=linear_solver)
     apply = realified(operator)
     target = as_pair(signal)
     norm = jnp.linalg.norm(signal)
 
+    # The residual closes over the data rather than taking optimistix's `args`: optimistix
+    # traces `args` (eval_shape) into the linearised residual it keeps in its state, and
+    # those tracers must not escape into the jitted step.
     def residual(pair, args):
+        del args
         ax = apply(pair)
         return (ax[0] - target[0], ax[1] - target[1]), None
 
@@ -79,8 +83,7 @@ def gauss_newton(
         return y, state, relative(jnp.sqrt(jnp.sum(r[0] ** 2) + jnp.sum(r[1] ** 2)), norm)
 
     def step(carry):
-        y, state = carry
-        y, state, rel = solver_step(y, state)
+        y, state, rel = solver_step(*carry)
         return (y, state), rel
 
     (y, state), history, stopped = iterate(

@@ -6,6 +6,7 @@ that it is no longer maintained, and that warning (only that one) is silenced he
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import equinox as eqx
@@ -71,33 +72,16 @@ def fista(
         return solution
     fn = operator.fn
     lipschitz = 1.1 * _power_norm(fn, power_iterations, seed)
-    lam = sparsity * float(jnp.max(jnp.abs(eqx.filter_jit(fn.adjoint)(signal))))
+    lam = sparsity * float(_max_backprojection(fn, signal))
     norm = jnp.linalg.norm(signal)
-
-    def value_and_grad(pair):
-        r = fn(as_complex(pair)) - signal
-        value = 0.5 * jnp.sum(jnp.abs(r) ** 2)
-        return (value, jnp.linalg.norm(r)), as_pair(fn.adjoint(r))
-
-    prox = _prox_nonnegative if nonnegative else _prox_l1
-    solver = jaxopt.ProximalGradient(
-        fun=value_and_grad,
-        prox=prox,
-        value_and_grad=True,
-        has_aux=True,
-        stepsize=1.0 / lipschitz,
-        maxiter=iterations,
-        acceleration=True,
-        jit=False,
-    )
+    solver = _solver(1.0 / lipschitz, nonnegative)
     pair = as_pair(x)
     if nonnegative:
-        pair = prox(pair, 0.0)
-    state = solver.init_state(pair, lam)
-    update = eqx.filter_jit(lambda pair, state: solver.update(pair, state, lam))
+        pair = _prox_nonnegative(pair, 0.0)
+    state = _init(solver, pair, lam, fn, signal)
 
     def step(carry):
-        pair, state = update(*carry)
+        pair, state = _update(solver, *carry, lam, fn, signal)
         return (pair, state), relative(state.aux, norm)
 
     (pair, _), history, stopped = iterate(
@@ -105,6 +89,42 @@ def fista(
     )
     stats = {"lambda": lam, "lipschitz": lipschitz, "nonnegative": nonnegative}
     return Solution(as_complex(pair), history, stopped, stats)
+
+
+@functools.cache
+def _solver(stepsize: float, nonnegative: bool) -> jaxopt.ProximalGradient:
+    """One jaxopt solver per (step, constraint), so that jit caches hit across runs."""
+    return jaxopt.ProximalGradient(
+        fun=_value_and_grad,
+        prox=_prox_nonnegative if nonnegative else _prox_l1,
+        value_and_grad=True,
+        has_aux=True,
+        stepsize=stepsize,
+        acceleration=True,
+        jit=False,  # the caller jits the whole update
+    )
+
+
+def _value_and_grad(pair, fn, signal):
+    """((½‖Aρ − y‖², ‖Aρ − y‖), ∇ = Aᴴ(Aρ − y)) with the adjoint kernel."""
+    r = fn(as_complex(pair)) - signal
+    value = 0.5 * jnp.sum(jnp.abs(r) ** 2)
+    return (value, jnp.linalg.norm(r)), as_pair(fn.adjoint(r))
+
+
+@eqx.filter_jit
+def _init(solver, pair, lam, fn, signal):
+    return solver.init_state(pair, lam, fn, signal)
+
+
+@eqx.filter_jit
+def _update(solver, pair, state, lam, fn, signal):
+    return solver.update(pair, state, lam, fn, signal)
+
+
+@eqx.filter_jit
+def _max_backprojection(fn, signal):
+    return jnp.max(jnp.abs(fn.adjoint(signal)))
 
 
 def _prox_l1(pair, lam, scaling=1.0):
@@ -124,14 +144,15 @@ def _prox_nonnegative(pair, lam, scaling=1.0):
 def _power_norm(fn, iterations: int, seed: int) -> float:
     """‖A‖² ≈ the Rayleigh quotient ‖Av‖²/‖v‖² after power iterations on AᴴA."""
 
-    @eqx.filter_jit
-    def power(fn, v):
-        def body(_, v):
-            w = fn.adjoint(fn(v))
-            return w / jnp.linalg.norm(w)
-
-        v = jax.lax.fori_loop(0, iterations, body, v / jnp.linalg.norm(v))
-        return jnp.sum(jnp.abs(fn(v)) ** 2)
-
     re, im = jax.random.normal(jax.random.key(seed), (2, fn.n_points))
-    return float(power(fn, jax.lax.complex(re, im)))
+    return float(_power(fn, jax.lax.complex(re, im), iterations))
+
+
+@eqx.filter_jit
+def _power(fn, v, iterations: int):
+    def body(_, v):
+        w = fn.adjoint(fn(v))
+        return w / jnp.linalg.norm(w)
+
+    v = jax.lax.fori_loop(0, iterations, body, v / jnp.linalg.norm(v))
+    return jnp.sum(jnp.abs(fn(v)) ** 2)

@@ -1,0 +1,161 @@
+"""Every solver against float64 least squares on a tiny problem, plus their contracts."""
+
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import random_complex, relative_error
+
+import rift_jax as rj
+from rift_jax import solvers
+from rift_jax._solvers._common import as_complex, as_pair, realified
+
+RUNS = {
+    "kaczmarz": (solvers.kaczmarz, {"iterations": 60, "tol": 0.0}, 5e-3),
+    "lsmr": (solvers.lsmr, {"iterations": 60, "tol": 0.0}, 1e-4),
+    "gauss-newton": (solvers.gauss_newton, {"iterations": 3, "inner": 20, "tol": 0.0}, 1e-4),
+    "fista": (solvers.fista, {"iterations": 150, "sparsity": 0.0, "tol": 0.0}, 1e-3),
+}
+
+
+@pytest.fixture(scope="module")
+def problem():
+    """24 viewpoints x 128 samples of a 125-voxel random scene: overdetermined and
+    well-conditioned, so least squares recovers ρ; the reference is float64 NumPy lstsq."""
+    radar = rj.Radar(n_frequencies=8, n_tx=4, n_rx=4)
+    viewpoints = rj.Viewpoints.grid(6, 4, polar_range=(0.3, 1.2))
+    operator = rj.grt_operator(radar, viewpoints, rj.grid_points(1.0, 0.5))
+    rho = random_complex(np.random.default_rng(1), operator.fn.n_points)
+    signal = np.asarray(operator.mv(jnp.asarray(rho)))
+    matrix = np.asarray(operator.as_matrix(), np.complex128)
+    reference = np.linalg.lstsq(matrix, signal.ravel().astype(np.complex128), rcond=None)[0]
+    return operator, signal, reference
+
+
+@pytest.fixture(scope="module")
+def solutions(problem):
+    operator, signal, _ = problem
+    return {name: f(operator, signal, progress=False, **kw) for name, (f, kw, _) in RUNS.items()}
+
+
+@pytest.mark.parametrize("name", RUNS)
+def test_agrees_with_float64_lstsq(problem, solutions, name):
+    _, _, reference = problem
+    assert relative_error(solutions[name].rho, reference) < RUNS[name][2]
+
+
+@pytest.mark.parametrize("name", RUNS)
+def test_history(solutions, name):
+    solution = solutions[name]
+    history = solution.history
+    assert solution.stopped == "iterations"
+    assert len(history) == history.seconds.shape[0] > 1
+    assert np.all(np.diff(history.seconds) > 0)
+    assert history.residual[-1] < 1e-2 * history.residual[0]
+    assert solution.rho.dtype == jnp.complex64
+
+
+def test_history_lengths(solutions):
+    assert len(solutions["kaczmarz"].history) == 60  # sweeps
+    assert len(solutions["lsmr"].history) == 6  # checks, every 10 LSMR steps
+    assert len(solutions["gauss-newton"].history) == 3
+
+
+def test_tolerance_stops_early(problem):
+    operator, signal, _ = problem
+    solution = solvers.lsmr(
+        operator, signal, iterations=200, check_every=5, tol=0.5, progress=False
+    )
+    assert solution.stopped == "tolerance"
+    assert len(solution.history) < 40
+
+
+def test_kaczmarz_seeded(problem):
+    operator, signal, _ = problem
+    run = lambda seed: solvers.kaczmarz(operator, signal, iterations=2, seed=seed, progress=False)
+    a, b, c = run(0), run(0), run(1)
+    np.testing.assert_array_equal(a.rho, b.rho)
+    assert not np.array_equal(a.rho, c.rho)
+
+
+def test_kaczmarz_resumes_from_x0(problem):
+    operator, signal, _ = problem
+    first = solvers.kaczmarz(operator, signal, iterations=3, progress=False)
+    more = solvers.kaczmarz(operator, signal, iterations=3, x0=first.rho, seed=1, progress=False)
+    assert more.history.residual[0] < first.history.residual[0]
+
+
+def test_fista_sparsity_and_nonnegativity(problem):
+    operator, signal, _ = problem
+    sparse = solvers.fista(operator, signal, iterations=30, sparsity=0.5, progress=False)
+    dense = solvers.fista(operator, signal, iterations=30, sparsity=0.0, progress=False)
+    assert np.sum(np.abs(sparse.rho) > 0) < np.sum(np.abs(dense.rho) > 0)
+    positive = solvers.fista(operator, signal, iterations=10, nonnegative=True, progress=False)
+    assert np.all(np.imag(positive.rho) == 0) and np.all(np.real(positive.rho) >= 0)
+    assert positive.stats["lambda"] > 0
+
+
+def test_realified_operator_transposes_to_the_adjoint(problem, rng):
+    """The (Re, Im) map optimistix sees transposes (real inner product) to Aᴴ."""
+    operator, signal, _ = problem
+    apply = realified(operator)
+    x = as_pair(jnp.asarray(random_complex(rng, operator.fn.n_points)))
+    y = as_pair(jnp.asarray(random_complex(rng, *signal.shape)))
+    (back,) = jax.linear_transpose(apply, x)(y)
+    np.testing.assert_allclose(
+        as_complex(back), operator.fn.adjoint(as_complex(y)), rtol=1e-5, atol=1e-9
+    )
+    ax = apply(x)
+    lhs = np.sum(ax[0] * y[0] + ax[1] * y[1])
+    rhs = np.sum(x[0] * back[0] + x[1] * back[1])
+    assert abs(lhs - rhs) < 1e-5 * abs(lhs)
+
+
+@pytest.mark.parametrize("name", RUNS)
+def test_zero_signal_gives_zero_with_warning(problem, name):
+    operator, signal, _ = problem
+    f, kw, _ = RUNS[name]
+    with pytest.warns(UserWarning, match="all zero"):
+        solution = f(operator, np.zeros_like(signal), progress=False, **kw)
+    assert solution.stopped == "zero signal"
+    assert not np.any(solution.rho)
+
+
+@pytest.mark.parametrize("name", RUNS)
+def test_bad_signal(problem, name):
+    operator, signal, _ = problem
+    f = RUNS[name][0]
+    bad = signal.copy()
+    bad[0, 0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="`signal` must be finite"):
+        f(operator, bad, progress=False)
+    with pytest.raises(ValueError, match=r"`signal` must have shape \(24, 8, 4, 4\)"):
+        f(operator, signal[:-1], progress=False)
+    with pytest.raises(ValueError, match="`iterations` must be a positive integer"):
+        f(operator, signal, iterations=0, progress=False)
+    with pytest.raises(ValueError, match="`operator` must be the GRTOperator"):
+        f(operator.transpose(), signal, progress=False)
+
+
+def test_bad_options(problem):
+    operator, signal, _ = problem
+    with pytest.raises(ValueError, match="`relaxation` must be in"):
+        solvers.kaczmarz(operator, signal, relaxation=2.0)
+    with pytest.raises(ValueError, match="`sparsity` must be in"):
+        solvers.fista(operator, signal, sparsity=1.0)
+    with pytest.raises(ValueError, match="`check_every`"):
+        solvers.lsmr(operator, signal, check_every=0)
+    with pytest.raises(ValueError, match="`x0` must be"):
+        solvers.lsmr(operator, signal, x0=np.zeros(3))
+
+
+def test_no_warnings_from_jaxopt_import():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        import importlib
+
+        import rift_jax._solvers.sparse as sparse
+
+        importlib.reload(sparse)
