@@ -74,7 +74,10 @@ def test_tolerance_stops_early(problem):
 
 def test_kaczmarz_seeded(problem):
     operator, signal, _ = problem
-    run = lambda seed: solvers.kaczmarz(operator, signal, iterations=2, seed=seed, progress=False)
+
+    def run(seed):
+        return solvers.kaczmarz(operator, signal, iterations=2, seed=seed, progress=False)
+
     a, b, c = run(0), run(0), run(1)
     np.testing.assert_array_equal(a.rho, b.rho)
     assert not np.array_equal(a.rho, c.rho)
