@@ -140,7 +140,7 @@ def paper_kaczmarz_cost(blocks: int, seed: int = 0) -> dict:
     from one timed sweep over ``blocks`` viewpoints after a compiling one."""
     radar = rj.Radar()
     grid = rj.Scene.empty(5.0, 0.4)
-    views, _ = rj.Viewpoints.grid().split(blocks, 0, seed=seed)
+    views, _ = rj.Viewpoints.grid().split(blocks, 1, seed=seed)  # split needs a test set
     operator = rj.grt_operator(radar, views, grid.points())
     signal = np.asarray(rj.synthesize(rj.scenes.cube(0.2), views, radar).signal)
     solution = rj.solvers.kaczmarz(operator, signal, iterations=2, progress=False)
