@@ -22,6 +22,7 @@ from ._operator import grt_operator
 from ._scenes import Scene
 from ._solvers import History
 from ._synthesis import RadarData, synthesize
+from ._validation import check_finite
 
 METHODS = {
     "kaczmarz": _solvers.kaczmarz,
@@ -203,10 +204,7 @@ def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):
             f"fit: the signal must have shape {expected} (n_views, n_freq, n_tx, n_rx) for "
             f"{len(viewpoints)} viewpoints and this radar, got {signal.shape}."
         )
-    if not np.all(np.isfinite(signal)):
-        raise ValueError(
-            f"fit: the signal must be finite; it holds {np.sum(~np.isfinite(signal))} NaN/inf."
-        )
+    check_finite(signal, "fit: the signal")
     peak = float(np.max(np.abs(signal)))
     scale = peak if peak > 0 else 1.0  # solvers work on O(1) data; ρ is scaled back
     return signal / scale, scale, radar, extent, granularity

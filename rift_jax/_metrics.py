@@ -14,6 +14,7 @@ from skimage.metrics import structural_similarity
 
 from ._scenes import Scene
 from ._synthesis import RadarData
+from ._validation import check_finite
 
 
 def _magnitudes(pred, truth, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -117,8 +118,7 @@ def p_rmse(pred_signal, true_signal) -> float:
     for name, x in (("pred_signal", p), ("true_signal", t)):
         if not np.iscomplexobj(x) and not np.issubdtype(x.dtype, np.number):
             raise ValueError(f"p_rmse: `{name}` must be a complex array, got {x.dtype}.")
-        if not np.all(np.isfinite(x)):
-            raise ValueError(f"p_rmse: `{name}` must be finite; it holds NaN/inf values.")
+        check_finite(x, f"p_rmse: `{name}`")
     if p.shape != t.shape or p.size == 0:
         raise ValueError(
             f"p_rmse: signals must have one non-empty shape, got {p.shape} and {t.shape}."

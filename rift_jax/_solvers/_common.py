@@ -19,7 +19,7 @@ from jax.custom_derivatives import linear_call
 from jaxtyping import Array, Complex, Float
 
 from .._operator import GRTOperator, replicated
-from .._validation import check_positive_int
+from .._validation import check_finite, check_positive_int
 from ._solution import History, Solution
 
 RealPair = tuple[Float[Array, " *shape"], Float[Array, " *shape"]]
@@ -61,8 +61,7 @@ def check_problem(where: str, operator, signal, x0, iterations) -> tuple[Array, 
             f"{where}: `signal` must have shape {expected} (n_views, n_freq, n_tx, n_rx) for "
             f"this operator, got {signal.shape}."
         )
-    if not np.all(np.isfinite(signal)):
-        raise ValueError(f"{where}: `signal` must be finite; it holds NaN/inf values.")
+    check_finite(signal, f"{where}: `signal`")
     n = operator.fn.n_points
     if x0 is None:
         x0 = np.zeros(n, np.complex64)
