@@ -2,7 +2,8 @@
 
 Data's path through the package: geometry (`Radar`, `Viewpoints`, `antenna_positions`) →
 scene (`Scene`, `rift_jax.scenes`) → GRT kernel (`rift_jax.grt`) → operator
-(`grt_operator`) → solvers (`rift_jax.solvers`) → `fit` → metrics (`rift_jax.metrics`).
+(`grt_operator`) → solvers and INRs (`rift_jax.solvers`, `RiftN`, `RiftS`, `Field`,
+`rift_jax.losses`) → `fit` → metrics (`rift_jax.metrics`).
 """
 
 import os as _os
@@ -32,6 +33,7 @@ def _use_every_cpu_core() -> None:
 _use_every_cpu_core()
 
 from . import grt as grt  # noqa: E402
+from . import losses as losses  # noqa: E402
 from . import metrics as metrics  # noqa: E402
 from . import scenes as scenes  # noqa: E402
 from . import solvers as solvers  # noqa: E402
@@ -41,6 +43,10 @@ from ._geometry import C0 as C0  # noqa: E402
 from ._geometry import Radar as Radar  # noqa: E402
 from ._geometry import Viewpoints as Viewpoints  # noqa: E402
 from ._geometry import antenna_positions as antenna_positions  # noqa: E402
+from ._models import AbstractINR as AbstractINR  # noqa: E402
+from ._models import Field as Field  # noqa: E402
+from ._models import RiftN as RiftN  # noqa: E402
+from ._models import RiftS as RiftS  # noqa: E402
 from ._operator import GRT as GRT  # noqa: E402
 from ._operator import GRTOperator as GRTOperator  # noqa: E402
 from ._operator import grt_operator as grt_operator  # noqa: E402

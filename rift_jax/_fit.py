@@ -8,6 +8,7 @@ predict unseen viewpoints and score itself with the paper's metrics.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import inspect
 import time
 from typing import Any
@@ -18,9 +19,10 @@ from jaxtyping import Array, Complex
 
 from . import _metrics, _solvers
 from ._geometry import Radar, Viewpoints
+from ._models import Field
 from ._operator import grt_operator
 from ._scenes import Scene
-from ._solvers import History
+from ._solvers import History, TrainingDiverged
 from ._synthesis import RadarData, synthesize
 from ._validation import check_finite
 
@@ -29,6 +31,8 @@ METHODS = {
     "lsmr": _solvers.lsmr,
     "gauss-newton": _solvers.gauss_newton,
     "fista": _solvers.fista,
+    "rift-n": functools.partial(_solvers.rift, model="rift-n"),
+    "rift-s": functools.partial(_solvers.rift, model="rift-s"),
 }
 
 
@@ -46,6 +50,8 @@ class FitResult:
     - `stopped`: why it stopped (see `Solution`).
     - `radar`, `viewpoints`: the training geometry.
     - `stats`: solver-specific numbers.
+    - `field`: for RIFT, the trained continuous scene (a `Field`, in the units of `scene`);
+      None for the grid solvers.
     """
 
     scene: Scene
@@ -57,6 +63,7 @@ class FitResult:
     radar: Radar
     viewpoints: Viewpoints
     stats: dict[str, Any] = dataclasses.field(default_factory=dict)
+    field: Field | None = None
 
     @property
     def residual(self) -> float:
@@ -65,8 +72,21 @@ class FitResult:
 
     def predict(self, viewpoints: Viewpoints) -> RadarData:
         """The reconstruction's signals at ``viewpoints``, normalised like `synthesize`
-        (max |S| = 1)."""
+        (max |S| = 1). For RIFT these are the INR's signals: the GRT of its rendering on the
+        grid it was trained on, i.e. of `scene`."""
         return synthesize(self.scene, viewpoints, self.radar)
+
+    def render(self, granularity: float, extent: float | None = None) -> Scene:
+        """The INR evaluated on another grid (``±extent``, default the scene's, at
+        ``granularity``): the field is continuous. Only for RIFT results."""
+        if self.field is None:
+            raise ValueError(
+                f"FitResult.render: method {self.method!r} reconstructs on a grid, not a "
+                "continuous field; use `result.scene.resample(...)` instead."
+            )
+        grid = Scene.empty(self.scene.extent if extent is None else extent, granularity)
+        rho = self.field.render(grid.points()).reshape(grid.shape)
+        return Scene(rho, grid.extent, grid.granularity)
 
     def evaluate(
         self, truth: Scene, test_viewpoints: Viewpoints, *, threshold: float = 0.2
@@ -118,21 +138,29 @@ def fit(
     - `viewpoints`: a `Viewpoints`, one per signal.
     - `radar`: a `Radar` (default the paper's; a `RadarData` brings its own).
     - `method`: ``"kaczmarz"`` (the paper's baseline), ``"lsmr"`` (lineax), ``"gauss-newton"``
-      (optimistix; ``damped=True`` for Levenberg-Marquardt) or ``"fista"`` (jaxopt, sparse).
+      (optimistix; ``damped=True`` for Levenberg-Marquardt), ``"fista"`` (jaxopt, sparse),
+      or RIFT: ``"rift-n"`` / ``"rift-s"`` (an INR trained with optax; see
+      `rift_jax.solvers.rift` and `Recipe`).
     - `granularity`, `extent`: the inverse grid (metres).
     - `snr_db`: noise added to synthesised signals (Scene input only).
-    - `seed`: seeds noise, Kaczmarz's block order and FISTA's power iteration.
+    - `seed`: seeds noise, Kaczmarz's block order, FISTA's power iteration, and RIFT's
+      initialisation and viewpoint order.
     - `progress`: show a progress bar on runs longer than two seconds.
-    - `**options`: passed to the solver (``iterations``, ``tol``, ``relaxation``, ...; see
-      `rift_jax.solvers`).
+    - `**options`: passed to the solver (``iterations``, ``tol``, ``relaxation``, ...; for
+      RIFT ``recipe``, ``epochs``, ``loss``, ...; see `rift_jax.solvers`).
 
     **Returns:** a `FitResult`.
+
+    **Raises:** ValueError for bad input; `rift_jax.solvers.TrainingDiverged` (a ValueError)
+    if RIFT's loss becomes non-finite, with the best result so far in its ``.result``.
     """
     if method not in METHODS:
         raise ValueError(f"fit: unknown `method` {method!r}; choose one of {sorted(METHODS)}.")
     solver = METHODS[method]
-    accepted = set(inspect.signature(solver).parameters) - {"operator", "signal", "progress"}
-    if unknown := set(options) - accepted:
+    parameters = inspect.signature(solver).parameters
+    accepted = set(parameters) - {"operator", "signal", "progress", "overrides"}
+    takes_any = any(p.kind is p.VAR_KEYWORD for p in parameters.values())  # checks its own
+    if not takes_any and (unknown := set(options) - accepted):
         raise ValueError(
             f"fit: method {method!r} takes no option(s) {sorted(unknown)}; it takes "
             f"{sorted(accepted - {'seed'})}."
@@ -148,22 +176,33 @@ def fit(
     operator = grt_operator(radar, viewpoints, grid.points())
     if "seed" in accepted:
         options = {"seed": seed, **options}
+    if isinstance(options.get("init"), Field):  # a result's field is in the data's units
+        options = {**options, "init": options["init"].scaled(1 / scale)}
     start = time.perf_counter()
-    solution = solver(operator, signal, progress=progress, **options)
-    rho = np.asarray(solution.rho) * scale
-    seconds = time.perf_counter() - start
-    scene = Scene(jnp.asarray(rho.reshape(grid.shape), jnp.complex64), extent, granularity)
-    return FitResult(
-        scene,
-        solution.history,
-        seconds,
-        method,
-        options,
-        solution.stopped,
-        radar,
-        viewpoints,
-        solution.stats,
-    )
+
+    def result(solution) -> FitResult:
+        rho = np.asarray(solution.rho) * scale
+        scene = Scene(jnp.asarray(rho.reshape(grid.shape), jnp.complex64), extent, granularity)
+        field = None if solution.field is None else solution.field.scaled(scale)
+        seconds = time.perf_counter() - start
+        return FitResult(
+            scene,
+            solution.history,
+            seconds,
+            method,
+            options,
+            solution.stopped,
+            radar,
+            viewpoints,
+            solution.stats,
+            field,
+        )
+
+    try:
+        return result(solver(operator, signal, progress=progress, **options))
+    except TrainingDiverged as error:
+        error.result = result(error.solution)
+        raise
 
 
 def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):

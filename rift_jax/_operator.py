@@ -21,7 +21,7 @@ import lineax as lx
 import numpy as np
 from jax.sharding import AxisType
 from jax.sharding import PartitionSpec as P
-from jaxtyping import Array, Complex, Float
+from jaxtyping import Array, Complex, Float, Int
 
 from . import _grt
 from ._geometry import Radar, Viewpoints, antenna_positions
@@ -72,6 +72,12 @@ class GRT(eqx.Module):
         if is_concrete(index) and not -self.n_views <= int(index) < self.n_views:
             raise ValueError(f"GRT: view `index` {index} out of range for {self.n_views} views.")
         return jax.tree.map(lambda a: a[index], (self.azimuth, self.polar))
+
+    def subset(self, index: Int[Array, " k"]) -> GRT:
+        """The GRT of viewpoints ``index`` only (an integer array, may be traced): a batch of
+        row blocks, itself sharded over devices like the whole."""
+        angles = jax.tree.map(lambda a: a[index], (self.azimuth, self.polar))
+        return eqx.tree_at(lambda g: (g.azimuth, g.polar), self, angles)
 
     def view(self, rho: Complex[Array, " n_points"], index) -> Complex[Array, "f m n"]:
         """The signal of viewpoint ``index`` (may be traced): one row block of the operator."""

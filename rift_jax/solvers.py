@@ -1,10 +1,26 @@
-"""Least-squares solvers on the shared GRT operator (what `rift_jax.fit` runs)."""
+"""Solvers on the shared GRT operator (what `rift_jax.fit` runs): least squares (Kaczmarz,
+LSMR, Gauss-Newton, FISTA) and RIFT's INR training (`rift`, configured by a `Recipe`)."""
 
+from ._solvers import RECIPES as RECIPES
 from ._solvers import History as History
+from ._solvers import Recipe as Recipe
 from ._solvers import Solution as Solution
+from ._solvers import TrainingDiverged as TrainingDiverged
 from ._solvers import fista as fista
 from ._solvers import gauss_newton as gauss_newton
 from ._solvers import kaczmarz as kaczmarz
 from ._solvers import lsmr as lsmr
+from ._solvers import rift as rift
 
-__all__ = ["kaczmarz", "lsmr", "gauss_newton", "fista", "Solution", "History"]
+__all__ = [
+    "kaczmarz",
+    "lsmr",
+    "gauss_newton",
+    "fista",
+    "rift",
+    "Recipe",
+    "RECIPES",
+    "Solution",
+    "History",
+    "TrainingDiverged",
+]

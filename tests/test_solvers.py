@@ -103,7 +103,7 @@ def test_fista_sparsity_and_nonnegativity(problem):
 def test_realified_operator_transposes_to_the_adjoint(problem, rng):
     """The (Re, Im) map optimistix sees transposes (real inner product) to Aᴴ."""
     operator, signal, _ = problem
-    apply = realified(operator)
+    apply = realified(operator.fn)
     x = as_pair(jnp.asarray(random_complex(rng, operator.fn.n_points)))
     y = as_pair(jnp.asarray(random_complex(rng, *signal.shape)))
     (back,) = jax.linear_transpose(apply, x)(y)

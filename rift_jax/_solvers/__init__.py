@@ -6,6 +6,10 @@ returns a `Solution` (ρ on the operator's grid and a per-iteration `History`).
 
 from ._solution import History as History
 from ._solution import Solution as Solution
+from ._solution import TrainingDiverged as TrainingDiverged
+from .inr import RECIPES as RECIPES
+from .inr import Recipe as Recipe
+from .inr import rift as rift
 from .kaczmarz import kaczmarz as kaczmarz
 from .linear import lsmr as lsmr
 from .nonlinear import gauss_newton as gauss_newton

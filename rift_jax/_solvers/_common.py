@@ -18,7 +18,7 @@ import numpy as np
 from jax.custom_derivatives import linear_call
 from jaxtyping import Array, Complex, Float
 
-from .._operator import GRTOperator, replicated
+from .._operator import GRT, GRTOperator, replicated
 from .._validation import check_finite, check_positive_int
 from ._solution import History, Solution
 
@@ -33,9 +33,9 @@ def as_complex(pair: RealPair) -> Complex[Array, " *shape"]:
     return jax.lax.complex(*pair)
 
 
-def realified(operator: GRTOperator):
-    """ρ ↦ Aρ on (Re, Im) pairs, whose transpose (for linearize/linear_transpose) is Aᴴ."""
-    fn = operator.fn
+def realified(fn: GRT):
+    """ρ ↦ Aρ on (Re, Im) pairs for the `GRT` ``fn``, whose transpose (for linearize,
+    linear_transpose, and so reverse-mode gradients) is Aᴴ."""
 
     def forward(_, pair):
         return as_pair(fn(as_complex(pair)))

@@ -25,10 +25,12 @@ class History:
     - `residual`: relative data residual ‖y − Aρ‖ / ‖y‖ as the solver observed it (each
       solver's docstring says where it is measured).
     - `seconds`: wall time since the start of the run at the end of each iteration.
+    - `loss`: the training loss per epoch (INR training only; None for least squares).
     """
 
     residual: np.ndarray
     seconds: np.ndarray
+    loss: np.ndarray | None = None
 
     def __len__(self) -> int:
         return self.residual.shape[0]
@@ -41,18 +43,33 @@ class Solution:
     - `rho`: the reconstructed complex64 reflectivity, (n_points,), on the operator's grid.
     - `history`: a `History`.
     - `stopped`: why the run ended: ``"iterations"`` (budget spent), ``"tolerance"``
-      (the residual stopped improving), or ``"zero signal"``.
+      (the residual stopped improving), ``"epochs"`` (INR: every epoch ran) or
+      ``"zero signal"``.
     - `stats`: solver-specific numbers (e.g. the step size used).
+    - `field`: the INR solver's continuous scene (a `rift_jax.Field`); None for the grid
+      solvers.
     """
 
     rho: Complex[Array, " n_points"]
     history: History
     stopped: str
     stats: dict[str, Any] = dataclasses.field(default_factory=dict)
+    field: Any = None
 
     @property
     def seconds(self) -> float:
         return float(self.history.seconds[-1]) if len(self.history) else 0.0
+
+
+class TrainingDiverged(ValueError):
+    """Training met a non-finite loss or gradient. ``.solution`` holds the best `Solution`
+    reached before that (and, raised from `rift_jax.fit`, ``.result`` the `FitResult`), so
+    the run so far is not lost."""
+
+    def __init__(self, message: str, solution: Solution):
+        super().__init__(message)
+        self.solution = solution
+        self.result = None
 
 
 _PATIENCE = 3

@@ -60,7 +60,7 @@ def gauss_newton(
     linear_solver = lx.LSMR(rtol=0.0, atol=0.0, max_steps=inner)  # no tolerance: `inner` steps
     kind = optx.LevenbergMarquardt if damped else optx.GaussNewton
     solver = kind(rtol=0.0, atol=0.0, linear_solver=linear_solver)
-    apply = realified(operator)
+    apply = realified(operator.fn)
     target = as_pair(signal)
     norm = jnp.linalg.norm(signal)
 

@@ -1,0 +1,159 @@
+"""The scene as an implicit neural representation: xyz → complex reflectivity.
+
+`RiftN` and `RiftS` are the paper's two INRs (Appendix "Model Structure"): one coordinate in
+(scaled to [-1, 1]), (Re ρ, Im ρ) out; callers vmap. `Field` wraps one of them with the
+scene's coordinate scale and a global complex gain, and is what training returns: a
+continuous scene that renders on any grid.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Complex, Float, PRNGKeyArray
+
+from ._validation import check_positive, check_positive_int
+
+
+class AbstractINR(eqx.Module):
+    """An INR: ``model(xyz)`` with xyz in [-1, 1]³ gives (Re ρ, Im ρ), shape (2,)."""
+
+    @abc.abstractmethod
+    def __call__(self, xyz: Float[Array, " 3"]) -> Float[Array, " 2"]:
+        raise NotImplementedError
+
+
+def _check_shape(where: str, width, depth):
+    check_positive_int(f"{where}: `width`", width)
+    check_positive_int(f"{where}: `depth`", depth)
+
+
+class RiftN(AbstractINR):
+    """RIFT(N): ``depth`` units of Linear → LeakyReLU → LayerNorm, then Linear → tanh.
+
+    The paper fixes the width (64) but not the depth (its figure is not in the text); four
+    hidden units is our default.
+    """
+
+    hidden: tuple[eqx.nn.Linear, ...]
+    norms: tuple[eqx.nn.LayerNorm, ...]
+    output: eqx.nn.Linear
+    negative_slope: float = eqx.field(static=True)
+
+    def __init__(
+        self,
+        *,
+        width: int = 64,
+        depth: int = 4,
+        negative_slope: float = 0.01,
+        key: PRNGKeyArray,
+    ):
+        _check_shape("RiftN", width, depth)
+        keys = jax.random.split(key, depth + 1)
+        sizes = [3] + [width] * depth
+        self.hidden = tuple(
+            eqx.nn.Linear(n_in, n_out, key=k)
+            for n_in, n_out, k in zip(sizes, sizes[1:], keys, strict=False)
+        )
+        self.norms = tuple(eqx.nn.LayerNorm(width) for _ in range(depth))
+        self.output = eqx.nn.Linear(width, 2, key=keys[-1])
+        self.negative_slope = negative_slope
+
+    def __call__(self, xyz: Float[Array, " 3"]) -> Float[Array, " 2"]:
+        h = xyz
+        for linear, norm in zip(self.hidden, self.norms, strict=True):
+            h = norm(jax.nn.leaky_relu(linear(h), self.negative_slope))
+        return jnp.tanh(self.output(h))
+
+
+class RiftS(AbstractINR):
+    """RIFT(S): a SIREN. ``depth`` units sin(ω₀(Wx + b)), then sin(Wx + b) (the paper's
+    output nonlinearity is also a sine).
+
+    SIREN's initialisation (Sitzmann et al. 2020, Sec. 3.2): first-layer weights
+    U(−1/n, 1/n), later weights U(−√(6/n)/ω₀, √(6/n)/ω₀) for fan-in n, so that
+    pre-activations stay ~N(0, 1) through depth; biases as PyTorch's default.
+    """
+
+    hidden: tuple[eqx.nn.Linear, ...]
+    output: eqx.nn.Linear
+    omega_0: float = eqx.field(static=True)
+
+    def __init__(
+        self, *, width: int = 64, depth: int = 4, omega_0: float = 30.0, key: PRNGKeyArray
+    ):
+        _check_shape("RiftS", width, depth)
+        check_positive("RiftS: `omega_0`", omega_0)
+        keys = jax.random.split(key, 2 * (depth + 1))
+        sizes = [3] + [width] * depth + [2]
+        layers = []
+        for i, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)):
+            linear = eqx.nn.Linear(n_in, n_out, key=keys[2 * i])
+            bound = 1 / n_in if i == 0 else math.sqrt(6 / n_in) / omega_0
+            weight = jax.random.uniform(
+                keys[2 * i + 1], linear.weight.shape, linear.weight.dtype, -bound, bound
+            )
+            layers.append(eqx.tree_at(lambda lin: lin.weight, linear, weight))
+        self.hidden = tuple(layers[:-1])
+        self.output = layers[-1]
+        self.omega_0 = omega_0
+
+    def __call__(self, xyz: Float[Array, " 3"]) -> Float[Array, " 2"]:
+        h = xyz
+        for linear in self.hidden:
+            h = jnp.sin(self.omega_0 * linear(h))
+        return jnp.sin(self.output(h))
+
+
+MODELS = {"rift-n": RiftN, "rift-s": RiftS}
+
+
+class Field(eqx.Module):
+    """A continuous scene: ρ(x) = g · (Re + i Im)(model(x / extent)).
+
+    - `model`: an `AbstractINR` (`RiftN`, `RiftS`, or your own).
+    - `log_gain`, `phase`: the global complex gain g = exp(log_gain + i·phase). The INR's
+      output is bounded (tanh, sine), while the reflectivity that explains normalised data
+      can be any size; the gain carries the scale (and `fit` folds the data's scale into it).
+    - `extent`: half-width of the scene (m), mapping it onto the INR's [-1, 1]³.
+    """
+
+    model: AbstractINR
+    log_gain: Float[Array, ""]
+    phase: Float[Array, ""]
+    extent: float = eqx.field(static=True)
+
+    def __init__(self, model: AbstractINR, extent: float, gain: complex = 1.0):
+        if not isinstance(model, AbstractINR):
+            raise ValueError(
+                f"Field: `model` must be a rift_jax AbstractINR (RiftN, RiftS, ...), got "
+                f"{type(model).__name__}."
+            )
+        check_positive("Field: `extent`", extent)
+        if not (np.isfinite(gain) and gain != 0):
+            raise ValueError(f"Field: `gain` must be finite and non-zero, got {gain!r}.")
+        self.model = model
+        self.log_gain = jnp.asarray(math.log(abs(gain)), jnp.float32)
+        self.phase = jnp.asarray(np.angle(gain), jnp.float32)
+        self.extent = float(extent)
+
+    @property
+    def gain(self) -> Complex[Array, ""]:
+        return jnp.exp(jax.lax.complex(self.log_gain, self.phase))
+
+    def __call__(self, xyz: Float[Array, " 3"]) -> Complex[Array, ""]:
+        re, im = self.model(xyz / self.extent)
+        return self.gain * jax.lax.complex(re, im)
+
+    def render(self, points: Float[Array, "n 3"]) -> Complex[Array, " n"]:
+        """ρ at each of ``points`` (metres), complex64."""
+        return jax.vmap(self)(jnp.asarray(points, jnp.float32)).astype(jnp.complex64)
+
+    def scaled(self, factor: float) -> Field:
+        """The same field with ρ multiplied by ``factor`` > 0."""
+        return eqx.tree_at(lambda f: f.log_gain, self, self.log_gain + math.log(factor))

@@ -1,0 +1,330 @@
+"""RIFT: an implicit neural representation trained through the GRT with optax.
+
+The scene is a `Field` (an INR plus a global complex gain) rendered on the operator's grid;
+its signals are the GRT of that rendering, and the loss compares them with the data. One
+jitted step does value-and-grad and the optax update for a minibatch of viewpoints; the
+Python loop outside keeps the epochs, the best parameters, the progress bar and the
+non-finite check.
+
+The signal's cotangent reaches ρ through `realified`, i.e. through the hand-written adjoint
+kernel: JAX's own transpose of the forward kernel is exact but ~12x slower (measured,
+docs/benchmarks.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from jaxtyping import Array, Complex, Float
+from tqdm.auto import tqdm
+
+from .._losses import LOSSES
+from .._models import MODELS, AbstractINR, Field
+from .._operator import GRT, GRTOperator, replicated
+from .._validation import check_positive, check_positive_int
+from ._common import as_complex, as_pair, check_problem, realified, zero_signal
+from ._solution import History, Solution, TrainingDiverged
+
+
+@dataclasses.dataclass(frozen=True)
+class Recipe:
+    """How an INR is trained. ``Recipe()`` is the default; ``RECIPES["paper"]`` the paper's.
+
+    - `loss`: ``"robust"`` (default), ``"paper"`` (see `rift_jax.losses`), or a callable
+      ``loss(pred, target) -> scalar``.
+    - `epochs`: passes over the training viewpoints.
+    - `learning_rate`, `weight_decay`, `adam_eps`: `optax.adamw`'s (weight decay applies to
+      the INR, not to the gain).
+    - `halve_every`: halve the learning rate every this many epochs (None: constant).
+    - `batch_views`: viewpoints per optimizer step (None: all, one step per epoch). An epoch
+      visits the viewpoints in a fresh seeded order; when the batch does not divide them,
+      the last batch is filled up with the epoch's first viewpoints.
+    - `clip_norm`: clip the gradient to this global norm (None: no clipping).
+    - `gain`: learn the global complex gain, started where the initial field's signals have
+      the data's energy (False: fixed at 1, as the paper).
+    """
+
+    loss: str | Callable = "robust"
+    epochs: int = 100
+    learning_rate: float = 1e-2
+    weight_decay: float = 1e-2
+    halve_every: int | None = 25
+    batch_views: int | None = 10
+    clip_norm: float | None = 1.0
+    gain: bool = True
+    adam_eps: float = 1e-8
+
+    def __post_init__(self):
+        if not callable(self.loss) and self.loss not in LOSSES:
+            raise ValueError(
+                f"Recipe: unknown `loss` {self.loss!r}; choose one of {sorted(LOSSES)} or pass "
+                "a callable loss(pred, target)."
+            )
+        check_positive_int("Recipe: `epochs`", self.epochs)
+        check_positive("Recipe: `learning_rate`", self.learning_rate)
+        check_positive("Recipe: `adam_eps`", self.adam_eps)
+        if not isinstance(self.weight_decay, int | float) or not self.weight_decay >= 0:
+            raise ValueError(f"Recipe: `weight_decay` must be ≥ 0, got {self.weight_decay!r}.")
+        for name in ("halve_every", "batch_views"):
+            if (value := getattr(self, name)) is not None:
+                check_positive_int(f"Recipe: `{name}` (or None)", value)
+        if self.clip_norm is not None:
+            check_positive("Recipe: `clip_norm` (or None)", self.clip_norm)
+        if not isinstance(self.gain, bool):
+            raise ValueError(f"Recipe: `gain` must be True or False, got {self.gain!r}.")
+
+    @property
+    def loss_fn(self) -> Callable:
+        return self.loss if callable(self.loss) else LOSSES[self.loss]
+
+
+RECIPES = {
+    "default": Recipe(),
+    # Appendix "Optimization Details": AdamW 1e-2, weight decay 1e-2, 500 epochs, learning
+    # rate halved every 100, lowest-loss parameters kept; magnitude + phase L1 with α2 = 1000
+    # α1. The batch is not stated: one step per epoch over all viewpoints.
+    "paper": Recipe(
+        loss="paper", epochs=500, halve_every=100, batch_views=None, clip_norm=None, gain=False
+    ),
+}
+
+
+def rift(
+    operator: GRTOperator,
+    signal: Complex[Array, "n_views n_freq n_tx n_rx"],
+    *,
+    model: str | AbstractINR = "rift-n",
+    recipe: str | Recipe = "default",
+    width: int = 64,
+    depth: int = 4,
+    init: Field | None = None,
+    seed: int = 0,
+    progress: bool = True,
+    **overrides,
+) -> Solution:
+    """Train an INR so that the GRT of its rendering on the operator's grid fits ``signal``.
+
+    **Arguments:**
+
+    - `operator`, `signal`, `progress`: as `kaczmarz`.
+    - `model`: ``"rift-n"`` (`RiftN`), ``"rift-s"`` (`RiftS`), or an `AbstractINR` instance.
+    - `recipe`: ``"default"``, ``"paper"`` or a `Recipe`.
+    - `width`, `depth`: the INR's size when `model` is a name.
+    - `init`: a `Field` to start from (e.g. a previous result's, to resume a run); its
+      model replaces `model`.
+    - `seed`: seeds the INR's initialisation and the order of the viewpoints.
+    - `**overrides`: any `Recipe` field, replacing the recipe's value (e.g. ``epochs=50``).
+
+    **Returns:** a `Solution` whose `field` is the trained `Field` with the lowest mean
+    training loss over an epoch (the parameters at that epoch's end) and whose `rho` is its
+    rendering. The history has per epoch the mean loss and the relative residual
+    ‖y − Aρ‖/‖y‖ accumulated over the epoch's minibatches (each at its step's parameters).
+
+    **Raises:** `TrainingDiverged` (a ValueError) if a loss or gradient becomes non-finite,
+    naming the epoch; its ``.solution`` holds the best parameters so far.
+    """
+    name = model if isinstance(model, str) else type(model).__name__
+    where = f"rift ({name})"
+    recipe = _recipe(where, recipe, overrides)
+    signal, _ = check_problem(where, operator, signal, None, recipe.epochs)
+    if (
+        solution := zero_signal(where, signal, jnp.zeros(operator.fn.n_points, jnp.complex64))
+    ) is not None:
+        return solution
+    fn = operator.fn
+    points = np.asarray(fn.points.hi, np.float64) + np.asarray(fn.points.lo, np.float64)
+    extent = float(np.max(np.abs(points))) or 1.0
+    coords = jnp.asarray(points, jnp.float32)
+    field = _initial_field(where, model, init, width, depth, extent, seed)
+    if recipe.gain and init is None:
+        gain = float(_energy_gain(*replicated((field, fn, coords, signal))))
+        if np.isfinite(gain) and gain != 0:
+            field = Field(field.model, extent, gain)
+
+    n_views = fn.n_views
+    batch = n_views if recipe.batch_views is None else min(recipe.batch_views, n_views)
+    steps = -(-n_views // batch)
+    spec = jax.tree.map(eqx.is_inexact_array, field)
+    if not recipe.gain:
+        spec = eqx.tree_at(lambda f: (f.log_gain, f.phase), spec, (False, False))
+    params, static = eqx.partition(field, spec)
+    optimizer = _optimizer(recipe, steps)
+    opt_state = optimizer.init(params)
+    params, opt_state, fn, coords, signal = replicated((params, opt_state, fn, coords, signal))
+    energy = np.sum(np.abs(np.asarray(signal)) ** 2, axis=(1, 2, 3))
+    rng = np.random.default_rng(seed)
+
+    losses, residuals, seconds = [], [], []
+    best_loss, best_params, best_epoch = math.inf, params, 0
+
+    def result(stopped: str) -> Solution:
+        best = eqx.combine(best_params, static)
+        history = History(np.asarray(residuals), np.asarray(seconds), np.asarray(losses))
+        stats = {
+            "model": name,
+            "recipe": dataclasses.asdict(recipe),
+            "best_epoch": best_epoch,
+            "best_loss": best_loss,
+            "steps_per_epoch": steps,
+            "batch_views": batch,
+            "gain": complex(best.gain),
+        }
+        return Solution(best.render(coords), history, stopped, stats, field=best)
+
+    start = time.perf_counter()
+    bar = tqdm(total=recipe.epochs, desc=where, disable=not progress, delay=2.0, leave=False)
+    with bar:
+        for epoch in range(1, recipe.epochs + 1):
+            epoch_start = time.perf_counter()
+            total_loss = total_residual = total_energy = 0.0
+            for k, index in enumerate(_batches(rng, n_views, batch), start=1):
+                new_params, new_state, loss, finite, residual = _step(
+                    params,
+                    opt_state,
+                    static,
+                    optimizer,
+                    recipe.loss_fn,
+                    fn,
+                    coords,
+                    signal,
+                    replicated(jnp.asarray(index)),
+                )
+                loss = float(loss)
+                if not (math.isfinite(loss) and bool(finite)):
+                    what = (
+                        f"the loss was {loss}"
+                        if not math.isfinite(loss)
+                        else "the gradient held NaN/inf values"
+                    )
+                    raise TrainingDiverged(
+                        f"{where}: {what} at epoch {epoch} (step {k} of {steps}); training "
+                        f"stopped. The parameters of epoch {best_epoch} (loss {best_loss:.4g}) "
+                        "are kept in this error's `.solution` (and `.result` from fit). Try a "
+                        "lower learning_rate or a clip_norm.",
+                        result(f"diverged at epoch {epoch}"),
+                    )
+                params, opt_state = new_params, new_state
+                total_loss += loss
+                total_residual += float(residual)
+                total_energy += float(energy[index].sum())
+            losses.append(total_loss / steps)
+            residuals.append(math.sqrt(total_residual / total_energy))
+            seconds.append(time.perf_counter() - start)
+            if losses[-1] < best_loss:
+                best_loss, best_params, best_epoch = losses[-1], params, epoch
+            bar.set_postfix(
+                loss=f"{losses[-1]:.4g}",
+                best=f"{best_loss:.4g}",
+                s_per_epoch=f"{time.perf_counter() - epoch_start:.2f}",
+                refresh=False,
+            )
+            bar.update()
+    return result("epochs")
+
+
+def _recipe(where: str, recipe, overrides) -> Recipe:
+    if isinstance(recipe, str):
+        if recipe not in RECIPES:
+            raise ValueError(
+                f"{where}: unknown `recipe` {recipe!r}; choose one of {sorted(RECIPES)} or pass "
+                "a rift_jax.solvers.Recipe."
+            )
+        recipe = RECIPES[recipe]
+    if not isinstance(recipe, Recipe):
+        raise ValueError(f"{where}: `recipe` must be a name or a Recipe, got {recipe!r}.")
+    fields = {f.name for f in dataclasses.fields(Recipe)}
+    if unknown := set(overrides) - fields:
+        raise ValueError(
+            f"{where}: unknown option(s) {sorted(unknown)}; the Recipe's fields are "
+            f"{sorted(fields)}, besides model, recipe, width, depth, init, seed and progress."
+        )
+    return dataclasses.replace(recipe, **overrides)
+
+
+def _initial_field(where, model, init, width, depth, extent, seed) -> Field:
+    if init is not None:
+        if not isinstance(init, Field):
+            raise ValueError(
+                f"{where}: `init` must be a rift_jax.Field, got {type(init).__name__}."
+            )
+        if not math.isclose(init.extent, extent, rel_tol=1e-5):
+            raise ValueError(
+                f"{where}: `init` was trained on extent {init.extent} m, this grid spans "
+                f"{extent} m."
+            )
+        return init
+    if isinstance(model, str):
+        if model not in MODELS:
+            raise ValueError(f"{where}: unknown `model` {model!r}; choose one of {sorted(MODELS)}.")
+        model = MODELS[model](width=width, depth=depth, key=jax.random.key(seed))
+    elif not isinstance(model, AbstractINR):
+        raise ValueError(
+            f"{where}: `model` must be a name or an AbstractINR, got {type(model).__name__}."
+        )
+    return Field(model, extent)
+
+
+def _batches(rng: np.random.Generator, n: int, size: int) -> np.ndarray:
+    """One epoch's viewpoint indices, (steps, size): a fresh permutation, filled up to a
+    whole number of batches with its own first entries (one batch shape, one compilation)."""
+    order = rng.permutation(n)
+    steps = -(-n // size)
+    return np.concatenate([order, order[: steps * size - n]]).reshape(steps, size)
+
+
+@functools.cache
+def _optimizer(recipe: Recipe, steps_per_epoch: int) -> optax.GradientTransformation:
+    """AdamW with the recipe's schedule and clipping; cached so that jit caches hit."""
+    lr = recipe.learning_rate
+    if recipe.halve_every is not None:
+        lr = optax.exponential_decay(
+            lr, recipe.halve_every * steps_per_epoch, decay_rate=0.5, staircase=True
+        )
+    adamw = optax.adamw(lr, eps=recipe.adam_eps, weight_decay=recipe.weight_decay, mask=_decay_mask)
+    if recipe.clip_norm is None:
+        return adamw
+    return optax.chain(optax.clip_by_global_norm(recipe.clip_norm), adamw)
+
+
+def _decay_mask(params: Field) -> Field:
+    """Weight decay on the INR, not on the gain (decay would pull |g| towards 1)."""
+    mask = jax.tree.map(lambda _: True, params)
+    if params.log_gain is None:  # gain frozen: not among the parameters
+        return mask
+    return eqx.tree_at(lambda f: (f.log_gain, f.phase), mask, (False, False))
+
+
+@eqx.filter_jit
+def _energy_gain(field: Field, fn: GRT, coords, signal) -> Float[Array, ""]:
+    """The g > 0 with ‖g·Aρ‖ = ‖y‖ for the field's ρ. (Not the least-squares gain: data
+    that no ρ on this grid explains, such as the paper's two-grid protocol, make that gain
+    ~0, and a zero prediction is where magnitude losses are flat.)"""
+    return jnp.linalg.norm(signal) / jnp.linalg.norm(fn(field.render(coords)))
+
+
+@eqx.filter_jit
+def _step(params, opt_state, static, optimizer, loss_fn, fn: GRT, coords, signal, index):
+    """One optimizer step on the viewpoints ``index``: (params, state, loss, all gradients
+    finite, ‖y_b − A_b ρ‖²)."""
+    rows = fn.subset(index)
+    target = signal[index]
+
+    def objective(params):
+        rho = eqx.combine(params, static).render(coords)
+        pred = as_complex(realified(rows)(as_pair(rho)))
+        return loss_fn(pred, target), pred
+
+    (loss, pred), grads = eqx.filter_value_and_grad(objective, has_aux=True)(params)
+    updates, opt_state = optimizer.update(grads, opt_state, params)
+    finite = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(g)) for g in jax.tree.leaves(grads)]))
+    residual = jnp.sum(jnp.abs(pred - target) ** 2)
+    return eqx.apply_updates(params, updates), opt_state, loss, finite, residual

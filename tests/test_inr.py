@@ -1,0 +1,286 @@
+"""RIFT: the INRs, the losses, training through the GRT, and `fit(method="rift-n"/"rift-s")`."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import reference
+from conftest import random_complex
+
+import rift_jax as rj
+from rift_jax._solvers._common import as_complex, as_pair, realified
+from rift_jax._solvers.inr import _optimizer, _step
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    """A 5³ cube scene reconstructed on its own grid (the data are explainable exactly)."""
+    radar = rj.Radar(n_frequencies=12, n_tx=4, n_rx=5)
+    scene = rj.scenes.cube(0.5, extent=1.0, edge=1.0)
+    train, test = rj.Viewpoints.grid(5, 4, polar_range=(0.3, 1.3)).split(16, 4)
+    return radar, scene, train, test
+
+
+# -- models -------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("cls", [rj.RiftN, rj.RiftS])
+def test_model_shapes_and_dtypes(cls):
+    model = cls(width=16, depth=3, key=jax.random.key(0))
+    out = model(jnp.zeros(3))
+    assert out.shape == (2,) and out.dtype == jnp.float32
+    xyz = jax.random.uniform(jax.random.key(1), (50, 3), minval=-1, maxval=1)
+    batch = jax.vmap(model)(xyz)
+    assert batch.shape == (50, 2) and bool(jnp.all(jnp.abs(batch) <= 1))  # tanh / sine
+    assert len(model.hidden) == 3 and model.hidden[0].weight.shape == (16, 3)
+    field = rj.Field(model, extent=5.0, gain=2.0 - 1.0j)
+    rho = field.render(5.0 * xyz)
+    assert rho.shape == (50,) and rho.dtype == jnp.complex64
+    expected = (2.0 - 1.0j) * jax.lax.complex(batch[:, 0], batch[:, 1])
+    np.testing.assert_allclose(rho, expected, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(field.scaled(3.0).render(5.0 * xyz), 3 * rho, rtol=1e-5)
+
+
+def test_siren_initialisation():
+    omega = 30.0
+    model = rj.RiftS(width=64, depth=3, omega_0=omega, key=jax.random.key(0))
+    first, later = model.hidden[0].weight, model.hidden[1].weight
+    assert float(jnp.max(jnp.abs(first))) <= 1 / 3
+    bound = np.sqrt(6 / 64) / omega
+    assert float(jnp.max(jnp.abs(later))) <= bound
+    assert float(jnp.max(jnp.abs(later))) > 0.9 * bound  # uniform over the whole range
+
+
+def test_model_bad_input():
+    with pytest.raises(ValueError, match="width"):
+        rj.RiftN(width=0, key=jax.random.key(0))
+    with pytest.raises(ValueError, match="omega_0"):
+        rj.RiftS(omega_0=-1.0, key=jax.random.key(0))
+    with pytest.raises(ValueError, match="model"):
+        rj.Field(lambda x: x, extent=1.0)
+    with pytest.raises(ValueError, match="gain"):
+        rj.Field(rj.RiftN(key=jax.random.key(0)), extent=1.0, gain=0.0)
+
+
+# -- losses -------------------------------------------------------------------------------
+
+
+def test_losses_hand_values():
+    target = jnp.asarray([1 + 0j, -2j])
+    pred = jnp.asarray([1 + 0j, 2j])  # same magnitudes; the second phase is off by π
+    # paper: magnitudes agree; angles 0 vs 0 and −π/2 vs π/2 → mean |Δ∠| = π/2
+    assert float(rj.losses.paper_loss(pred, target)) == pytest.approx(1000 * np.pi / 2, rel=1e-6)
+    assert float(rj.losses.paper_loss(pred, target, alpha_phase=1.0)) == pytest.approx(np.pi / 2)
+    # robust: (0 + |S|·(1 − cos π) = 2·2) / 2 entries / mean|S| = 1.5 → 4/3
+    assert float(rj.losses.robust_loss(pred, target)) == pytest.approx(4 / 3, rel=1e-6)
+    # mse: |P − S|² = 0, 16 → mean 8 over mean|S|² = 2.5 → 3.2
+    assert float(rj.losses.complex_mse(pred, target)) == pytest.approx(3.2, rel=1e-6)
+    # a pure magnitude error, 2 against 1 at the same phase
+    two, one = jnp.asarray([2 + 0j]), jnp.asarray([1 + 0j])
+    assert float(rj.losses.paper_loss(two, one)) == pytest.approx(1.0)
+    assert float(rj.losses.robust_loss(two, one)) == pytest.approx(1.0)
+    assert float(rj.losses.complex_mse(two, one)) == pytest.approx(1.0)
+    # the paper's angle difference is not wrapped: phases ±(π − 0.1) count 2π − 0.2 apart
+    a, b = jnp.exp(1j * (np.pi - 0.1)), jnp.exp(-1j * (np.pi - 0.1))
+    assert float(rj.losses.paper_loss(a[None], b[None], alpha_phase=1.0)) == pytest.approx(
+        2 * np.pi - 0.2, rel=1e-5
+    )
+    assert float(rj.losses.robust_loss(a[None], b[None])) == pytest.approx(
+        1 - np.cos(0.2), rel=1e-3
+    )
+    for loss in rj.losses.LOSSES.values():
+        assert float(loss(target, target)) == pytest.approx(0.0, abs=1e-7)
+        with pytest.raises(ValueError, match="same shape"):
+            loss(pred, target[:1])
+
+
+# -- training through the GRT -------------------------------------------------------------
+
+
+def _dense_reference(radar, viewpoints, points):
+    """The float64 GRT matrix, (n_views·F·M·N, V), from tests/reference.py."""
+    blocks = []
+    eye = np.eye(len(points))
+    for az, pol in zip(viewpoints.azimuth, viewpoints.polar, strict=True):
+        tx, rx = reference.antenna_positions(
+            radar.distance, radar.spacing, radar.n_tx, radar.n_rx, az, pol
+        )
+        cols = [reference.forward(points, e, tx, rx, radar.frequencies).ravel() for e in eye]
+        blocks.append(np.stack(cols, axis=1))
+    return np.concatenate(blocks, axis=0)
+
+
+@pytest.mark.parametrize("loss_name", ["robust", "paper", "mse"])
+def test_gradient_through_the_grt_matches_float64_finite_differences(tiny, loss_name, rng):
+    """The float32 gradient (adjoint kernel route) against central differences of an
+    independent float64 pipeline: the NumPy reference GRT and the INR in x64."""
+    radar, _, train, _ = tiny
+    views = train.subset([0, 5, 9])
+    points = rj.scenes.cube(0.5, extent=1.0).points()[::4]  # 32 points
+    operator = rj.grt_operator(radar, views, points)
+    loss = rj.losses.LOSSES[loss_name]
+    model = rj.RiftN(width=8, depth=2, key=jax.random.key(3))
+    field = rj.Field(model, extent=1.0, gain=30.0 * np.exp(0.3j))
+    signal = jnp.asarray(random_complex(rng, *operator.out_structure().shape))
+
+    @eqx.filter_jit
+    def ours(params):
+        rho = eqx.combine(params, static).render(points)
+        return loss(as_complex(realified(operator.fn)(as_pair(rho))), signal)
+
+    params, static = eqx.partition(field, eqx.is_inexact_array)
+    grads = eqx.filter_grad(ours)(params)
+    matrix = _dense_reference(radar, views, np.asarray(points, np.float64))
+    with jax.enable_x64(True):
+        params64 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float64), params)
+        points64 = jnp.asarray(points, jnp.float64)
+        signal64 = jnp.asarray(signal, jnp.complex128).ravel()
+
+        def theirs(params):
+            rho = jax.vmap(eqx.combine(params, static))(points64)
+            return loss(jnp.asarray(matrix) @ rho, signal64)
+
+        for k in range(3):
+            keys = jax.random.split(jax.random.key(10 + k), len(jax.tree.leaves(params64)))
+            leaves, treedef = jax.tree.flatten(params64)
+            direction = treedef.unflatten(
+                [
+                    jax.random.normal(key, a.shape, jnp.float64)
+                    for key, a in zip(keys, leaves, strict=True)
+                ]
+            )
+            plus = theirs(jax.tree.map(lambda p, d: p + 1e-6 * d, params64, direction))
+            minus = theirs(jax.tree.map(lambda p, d: p - 1e-6 * d, params64, direction))
+            finite_difference = float((plus - minus) / 2e-6)
+            ad = sum(
+                float(jnp.vdot(jnp.asarray(g, jnp.float64), d))
+                for g, d in zip(jax.tree.leaves(grads), jax.tree.leaves(direction), strict=True)
+            )
+            assert ad == pytest.approx(finite_difference, rel=2e-3, abs=1e-6)
+
+
+def test_jit_step_equals_eager_step(tiny):
+    _, scene, train, _ = tiny
+    radar = rj.Radar(n_frequencies=4, n_tx=2, n_rx=3)  # op-by-op dispatch is slow: keep it small
+    operator = rj.grt_operator(radar, train, scene.points())
+    signal = rj.synthesize(scene, train, radar).signal
+    field = rj.Field(rj.RiftN(width=8, depth=2, key=jax.random.key(0)), extent=1.0, gain=5.0)
+    params, static = eqx.partition(field, eqx.is_inexact_array)
+    recipe = rj.solvers.Recipe(batch_views=2)
+    optimizer = _optimizer(recipe, 8)
+    state = optimizer.init(params)
+    args = (params, state, static, optimizer, recipe.loss_fn, operator.fn)
+    rest = (jnp.asarray(scene.points(), jnp.float32), jnp.asarray(signal), jnp.arange(2))
+    jitted = _step(*args, *rest)
+    eager = _step.__wrapped__(*args, *rest)  # op by op, no outer jit
+    for a, b in zip(jax.tree.leaves(jitted), jax.tree.leaves(eager), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=2e-4, atol=1e-6)
+
+
+def test_rift_overfits_a_tiny_scene(tiny):
+    """On its own grid the scene is explainable: the loss falls by orders of magnitude and
+    the scene comes back."""
+    radar, scene, train, test = tiny
+    result = rj.fit(
+        scene, train, radar=radar, method="rift-n", granularity=0.5, epochs=300, progress=False
+    )
+    loss = result.history.loss
+    assert len(loss) == 300 and result.stopped == "epochs"
+    assert loss.min() < 1e-2 * loss[0]
+    metrics = result.evaluate(scene, test)
+    assert metrics["m_ssim"] > 0.9 and metrics["t_iou"] == 1.0
+    assert result.stats["best_loss"] == pytest.approx(loss.min())
+    # the field is continuous: it renders on any grid, and `scene` is its rendering
+    assert result.render(0.25).shape == (9, 9, 9)
+    np.testing.assert_allclose(result.render(0.5).reflectivity, result.scene.reflectivity, 1e-4)
+
+
+def test_rift_s_end_to_end_and_seeded(tiny):
+    radar, scene, train, test = tiny
+    options = dict(radar=radar, method="rift-s", epochs=3, progress=False)
+    first = rj.fit(scene, train, seed=1, **options)
+    again = rj.fit(scene, train, seed=1, **options)
+    other = rj.fit(scene, train, seed=2, **options)
+    np.testing.assert_array_equal(first.scene.reflectivity, again.scene.reflectivity)
+    assert not np.allclose(first.scene.reflectivity, other.scene.reflectivity)
+    assert first.scene.shape == (3, 3, 3) and first.field is not None
+    prediction = first.predict(test)
+    assert prediction.signal.shape == (len(test), 12, 4, 5)
+    assert all(np.isfinite(v) for v in first.evaluate(scene, test).values())
+    # resume: a run started from the first one's field (and barely moved) keeps its scene
+    resumed = rj.fit(scene, train, seed=1, init=first.field, learning_rate=1e-9, **options)
+    np.testing.assert_allclose(
+        resumed.scene.reflectivity, first.scene.reflectivity, rtol=1e-3, atol=1e-4
+    )
+
+
+def test_paper_recipe_runs_with_a_fixed_gain(tiny):
+    radar, scene, train, _ = tiny
+    result = rj.fit(
+        scene, train, radar=radar, method="rift-n", recipe="paper", epochs=2, progress=False
+    )
+    assert result.stats["recipe"]["loss"] == "paper" and result.stats["steps_per_epoch"] == 1
+    assert result.stats["gain"] == 1.0
+
+
+def test_bad_input(tiny):
+    radar, scene, train, _ = tiny
+    fit = dict(radar=radar, progress=False)
+    cases = [
+        (dict(method="rift-n", model="mlp"), "model"),
+        (dict(method="rift-n", loss="l2"), "loss"),
+        (dict(method="rift-n", recipe="fast"), "recipe"),
+        (dict(method="rift-n", epochs=0), "epochs"),
+        (dict(method="rift-n", learning_rate=0.0), "learning_rate"),
+        (dict(method="rift-n", learning_rate=-1e-3), "learning_rate"),
+        (dict(method="rift-n", batch_views=0), "batch_views"),
+        (dict(method="rift-n", epoch=3), "epoch"),
+        (dict(method="rift-s", init="field"), "init"),
+    ]
+    for options, match in cases:
+        with pytest.raises(ValueError, match=match):
+            rj.fit(scene, train, **fit, **options)
+    signal = rj.synthesize(scene, train, radar).signal
+    with pytest.raises(ValueError, match="viewpoints"):
+        rj.fit(
+            signal[:-1], train, method="rift-n", extent=1.0, granularity=0.5, **fit
+        )  # 15 signals for 16 viewpoints
+    with pytest.raises(ValueError, match="viewpoints"):
+        rj.fit(
+            rj.synthesize(scene, train[:4], radar),
+            train,
+            method="rift-n",
+            extent=1.0,
+            granularity=0.5,
+            **fit,
+        )
+    with pytest.raises(ValueError, match="continuous"):
+        rj.fit(scene, train, method="kaczmarz", iterations=1, **fit).render(0.25)
+
+
+def test_non_finite_loss_stops_with_the_best_result(tiny):
+    """A loss that turns NaN once the prediction's energy moves off the data's (it starts on
+    it: the gain is initialised so) stops at epoch 2 and keeps epoch 1's parameters."""
+    radar, scene, train, _ = tiny
+
+    def fragile(pred, target):
+        drift = jnp.abs(jnp.sum(jnp.abs(pred) ** 2) / jnp.sum(jnp.abs(target) ** 2) - 1)
+        return rj.losses.robust_loss(pred, target) + jnp.where(drift > 1e-2, jnp.nan, 0.0)
+
+    with pytest.raises(rj.solvers.TrainingDiverged, match=r"loss was nan at epoch 2") as error:
+        rj.fit(
+            scene,
+            train,
+            radar=radar,
+            method="rift-n",
+            loss=fragile,
+            batch_views=None,
+            learning_rate=0.1,
+            epochs=5,
+            progress=False,
+        )
+    assert isinstance(error.value, ValueError)
+    result = error.value.result
+    assert result.stats["best_epoch"] == 1 and len(result.history.loss) == 1
+    assert np.all(np.isfinite(result.scene.reflectivity)) and result.field is not None
