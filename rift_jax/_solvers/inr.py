@@ -136,11 +136,9 @@ def rift(
     where = f"rift ({name})"
     recipe = _recipe(where, recipe, overrides)
     signal, _ = check_problem(where, operator, signal, None, recipe.epochs)
-    if (
-        solution := zero_signal(where, signal, jnp.zeros(operator.fn.n_points, jnp.complex64))
-    ) is not None:
-        return solution
     fn = operator.fn
+    if (solution := zero_signal(where, signal, jnp.zeros(fn.n_points, jnp.complex64))) is not None:
+        return solution
     points = np.asarray(fn.points.hi, np.float64) + np.asarray(fn.points.lo, np.float64)
     extent = float(np.max(np.abs(points))) or 1.0
     coords = jnp.asarray(points, jnp.float32)
