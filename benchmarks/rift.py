@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 from pathlib import Path
 
@@ -92,14 +93,21 @@ def runs(cfg: Config, scene_name: str) -> list[tuple[str, int, str, dict]]:
     return ls + rift
 
 
-def run(cfg: Config, scene_names, seed: int = 0, progress: bool = True, checkpoint=None) -> dict:
-    """Every run of ``cfg`` on ``scene_names``; ``checkpoint(results)`` after each one."""
+def run(
+    cfg: Config, scene_names, seed: int = 0, progress: bool = True, checkpoint=None, done=None
+) -> dict:
+    """Every run of ``cfg`` on ``scene_names``; ``checkpoint(results)`` after each one.
+    ``done``: results of an earlier call, whose runs are kept and not repeated."""
     radar = rj.Radar()
     pool = rj.Viewpoints.grid()
-    rows, histories = [], {}
+    done = done or {"rows": [], "histories": {}}
+    rows, histories = list(done["rows"]), dict(done["histories"])
+    order = [(name, label) for name in scene_names for label, *_ in runs(cfg, name)]
     for name in scene_names:
         scene = getattr(rj.scenes, name)(cfg.forward, extent=cfg.extent)
         for label, n, method, options in runs(cfg, name):
+            if any(row["scene"] == name and row["run"] == label for row in rows):
+                continue
             train, test = pool.split(n, cfg.n_test, seed=seed)
             result = rj.fit(
                 scene,
@@ -129,6 +137,7 @@ def run(cfg: Config, scene_names, seed: int = 0, progress: bool = True, checkpoi
                 "loss": None if result.history.loss is None else result.history.loss.tolist(),
             }
             print(_row_md(rows[-1]), flush=True)
+            rows.sort(key=lambda r: order.index((r["scene"], r["run"])))
             if checkpoint:
                 checkpoint({"rows": rows, "histories": histories})
     return {"rows": rows, "histories": histories}
@@ -199,6 +208,12 @@ def main(argv=None) -> None:
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-progress", action="store_true")
+    parser.add_argument(
+        "--resume", action="store_true", help="keep the runs already in OUT/rift.json"
+    )
+    parser.add_argument(
+        "--redo", default=None, help="with --resume: rerun the runs whose label contains this"
+    )
     args = parser.parse_args(argv)
     cfg = SCALES[args.scale]
     if args.epochs is not None:
@@ -221,7 +236,21 @@ def main(argv=None) -> None:
         plot_loss_study(results, out / "loss_study.png")
 
     scenes = [s for s in args.scenes.split(",") if s]
-    run(cfg, scenes, seed=args.seed, progress=not args.no_progress, checkpoint=checkpoint)
+    done = None
+    if args.resume and (out / "rift.json").exists():
+        done = json.loads((out / "rift.json").read_text())
+        keep = [
+            row
+            for row in done["rows"]
+            if row["scene"] in scenes and not (args.redo and args.redo in row["run"])
+        ]
+        kept = {f"{row['scene']}/{row['run']}" for row in keep}
+        done = {
+            "rows": keep,
+            "histories": {k: v for k, v in done["histories"].items() if k in kept},
+        }
+        print(f"resuming: {len(keep)} runs kept from {out / 'rift.json'}", flush=True)
+    run(cfg, scenes, args.seed, not args.no_progress, checkpoint, done)
     print(f"wrote {out}/rift.md, rift.json, loss_study.png", flush=True)
 
 

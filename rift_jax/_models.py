@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import abc
 import math
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -21,7 +22,12 @@ from ._validation import check_positive, check_positive_int
 
 
 class AbstractINR(eqx.Module):
-    """An INR: ``model(xyz)`` with xyz in [-1, 1]³ gives (Re ρ, Im ρ), shape (2,)."""
+    """An INR: ``model(xyz)`` with xyz in [-1, 1]³ gives (Re ρ, Im ρ), shape (2,).
+
+    `learning_rate` is the Adam step the default training recipe uses for this kind of
+    model."""
+
+    learning_rate: ClassVar[float] = 1e-2
 
     @abc.abstractmethod
     def __call__(self, xyz: Float[Array, " 3"]) -> Float[Array, " 2"]:
@@ -78,7 +84,14 @@ class RiftS(AbstractINR):
     SIREN's initialisation (Sitzmann et al. 2020, Sec. 3.2): first-layer weights
     U(−1/n, 1/n), later weights U(−√(6/n)/ω₀, √(6/n)/ω₀) for fan-in n, so that
     pre-activations stay ~N(0, 1) through depth; biases as PyTorch's default.
+
+    Its default learning rate is 1e-3, not RiftN's 1e-2: ω₀ multiplies every weight's
+    effect on the pre-activations, so an Adam step of 1e-2 moves them by ~0.3 rad and
+    training diverges (measured on the cube: m-SSIM 0.005 at 1e-2, 0.36 at 1e-3 after 20
+    epochs).
     """
+
+    learning_rate: ClassVar[float] = 1e-3
 
     hidden: tuple[eqx.nn.Linear, ...]
     output: eqx.nn.Linear

@@ -167,7 +167,7 @@ def test_jit_step_equals_eager_step(tiny):
     signal = rj.synthesize(scene, train, radar).signal
     field = rj.Field(rj.RiftN(width=8, depth=2, key=jax.random.key(0)), extent=1.0, gain=5.0)
     params, static = eqx.partition(field, eqx.is_inexact_array)
-    recipe = rj.solvers.Recipe(batch_views=2)
+    recipe = rj.solvers.Recipe(batch_views=2, learning_rate=1e-2)
     optimizer = _optimizer(recipe, 8)
     state = optimizer.init(params)
     args = (params, state, static, optimizer, recipe.loss_fn, operator.fn)

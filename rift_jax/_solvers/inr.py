@@ -43,7 +43,8 @@ class Recipe:
       ``loss(pred, target) -> scalar``.
     - `epochs`: passes over the training viewpoints.
     - `learning_rate`, `weight_decay`, `adam_eps`: `optax.adamw`'s (weight decay applies to
-      the INR, not to the gain).
+      the INR, not to the gain). ``learning_rate=None`` takes the model's own default
+      (`AbstractINR.learning_rate`: 1e-2 for RiftN, 1e-3 for RiftS).
     - `halve_every`: halve the learning rate every this many epochs (None: constant).
     - `batch_views`: viewpoints per optimizer step (None: all, one step per epoch). An epoch
       visits the viewpoints in a fresh seeded order; when the batch does not divide them,
@@ -55,7 +56,7 @@ class Recipe:
 
     loss: str | Callable = "robust"
     epochs: int = 100
-    learning_rate: float = 1e-2
+    learning_rate: float | None = None
     weight_decay: float = 1e-2
     halve_every: int | None = 25
     batch_views: int | None = 10
@@ -70,7 +71,8 @@ class Recipe:
                 "a callable loss(pred, target)."
             )
         check_positive_int("Recipe: `epochs`", self.epochs)
-        check_positive("Recipe: `learning_rate`", self.learning_rate)
+        if self.learning_rate is not None:
+            check_positive("Recipe: `learning_rate` (or None)", self.learning_rate)
         check_positive("Recipe: `adam_eps`", self.adam_eps)
         if not isinstance(self.weight_decay, int | float) or not self.weight_decay >= 0:
             raise ValueError(f"Recipe: `weight_decay` must be ≥ 0, got {self.weight_decay!r}.")
@@ -93,7 +95,13 @@ RECIPES = {
     # rate halved every 100, lowest-loss parameters kept; magnitude + phase L1 with α2 = 1000
     # α1. The batch is not stated: one step per epoch over all viewpoints.
     "paper": Recipe(
-        loss="paper", epochs=500, halve_every=100, batch_views=None, clip_norm=None, gain=False
+        loss="paper",
+        epochs=500,
+        learning_rate=1e-2,
+        halve_every=100,
+        batch_views=None,
+        clip_norm=None,
+        gain=False,
     ),
 }
 
@@ -143,6 +151,8 @@ def rift(
     extent = float(np.max(np.abs(points))) or 1.0
     coords = jnp.asarray(points, jnp.float32)
     field = _initial_field(where, model, init, width, depth, extent, seed)
+    if recipe.learning_rate is None:
+        recipe = dataclasses.replace(recipe, learning_rate=field.model.learning_rate)
     if recipe.gain and init is None:
         gain = float(_energy_gain(*replicated((field, fn, coords, signal))))
         if np.isfinite(gain) and gain != 0:
