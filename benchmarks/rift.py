@@ -102,7 +102,8 @@ def run(
     pool = rj.Viewpoints.grid()
     done = done or {"rows": [], "histories": {}}
     rows, histories = list(done["rows"]), dict(done["histories"])
-    order = [(name, label) for name in scene_names for label, *_ in runs(cfg, name)]
+    order = [(name, label) for name in PAPER for label, *_ in runs(cfg, name)]
+    rank = {key: i for i, key in enumerate(order)}  # rows in table order, resumed or not
     for name in scene_names:
         scene = getattr(rj.scenes, name)(cfg.forward, extent=cfg.extent)
         for label, n, method, options in runs(cfg, name):
@@ -137,7 +138,7 @@ def run(
                 "loss": None if result.history.loss is None else result.history.loss.tolist(),
             }
             print(_row_md(rows[-1]), flush=True)
-            rows.sort(key=lambda r: order.index((r["scene"], r["run"])))
+            rows.sort(key=lambda r: rank.get((r["scene"], r["run"]), len(rank)))
             if checkpoint:
                 checkpoint({"rows": rows, "histories": histories})
     return {"rows": rows, "histories": histories}
@@ -239,11 +240,13 @@ def main(argv=None) -> None:
     done = None
     if args.resume and (out / "rift.json").exists():
         done = json.loads((out / "rift.json").read_text())
-        keep = [
-            row
-            for row in done["rows"]
-            if row["scene"] in scenes and not (args.redo and args.redo in row["run"])
-        ]
+        config = json.loads(json.dumps(dataclasses.asdict(cfg)))  # tuples as JSON lists
+        if (done["config"], done["seed"]) != (config, args.seed):
+            raise SystemExit(
+                f"--resume: {out / 'rift.json'} was measured with another config or seed; "
+                "choose another --out."
+            )
+        keep = [row for row in done["rows"] if not (args.redo and args.redo in row["run"])]
         kept = {f"{row['scene']}/{row['run']}" for row in keep}
         done = {
             "rows": keep,

@@ -176,8 +176,9 @@ def fit(
     operator = grt_operator(radar, viewpoints, grid.points())
     if "seed" in accepted:
         options = {"seed": seed, **options}
-    if isinstance(options.get("init"), Field):  # a result's field is in the data's units
-        options = {**options, "init": options["init"].scaled(1 / scale)}
+    solver_options = options
+    if isinstance(options.get("init"), Field):  # a result's field is in the scene's units
+        solver_options = {**options, "init": options["init"].scaled(1 / scale)}
     start = time.perf_counter()
 
     def result(solution) -> FitResult:
@@ -199,7 +200,7 @@ def fit(
         )
 
     try:
-        return result(solver(operator, signal, progress=progress, **options))
+        return result(solver(operator, signal, progress=progress, **solver_options))
     except TrainingDiverged as error:
         error.result = result(error.solution)
         raise

@@ -164,9 +164,13 @@ class Field(eqx.Module):
         return self.gain * jax.lax.complex(re, im)
 
     def render(self, points: Float[Array, "n 3"]) -> Complex[Array, " n"]:
-        """ρ at each of ``points`` (metres), complex64."""
-        return jax.vmap(self)(jnp.asarray(points, jnp.float32)).astype(jnp.complex64)
+        """ρ at each of ``points`` (metres), complex64. Evaluated in batches of 65,536 points,
+        so that fine grids do not hold every hidden activation at once."""
+        points = jnp.asarray(points, jnp.float32)
+        batch = min(points.shape[0], 2**16)
+        return jax.lax.map(self, points, batch_size=batch).astype(jnp.complex64)
 
     def scaled(self, factor: float) -> Field:
         """The same field with ρ multiplied by ``factor`` > 0."""
+        check_positive("Field.scaled: `factor`", factor)
         return eqx.tree_at(lambda f: f.log_gain, self, self.log_gain + math.log(factor))

@@ -75,7 +75,7 @@ class GRT(eqx.Module):
 
     def subset(self, index: Int[Array, " k"]) -> GRT:
         """The GRT of viewpoints ``index`` only (an integer array, may be traced): a batch of
-        row blocks, itself sharded over devices like the whole."""
+        row blocks. Calling it spreads those viewpoints over devices, as for the whole."""
         angles = jax.tree.map(lambda a: a[index], (self.azimuth, self.polar))
         return eqx.tree_at(lambda g: (g.azimuth, g.polar), self, angles)
 

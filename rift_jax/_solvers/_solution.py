@@ -43,8 +43,8 @@ class Solution:
     - `rho`: the reconstructed complex64 reflectivity, (n_points,), on the operator's grid.
     - `history`: a `History`.
     - `stopped`: why the run ended: ``"iterations"`` (budget spent), ``"tolerance"``
-      (the residual stopped improving), ``"epochs"`` (INR: every epoch ran) or
-      ``"zero signal"``.
+      (the residual stopped improving), ``"epochs"`` (INR: every epoch ran),
+      ``"diverged at epoch N"`` (INR, in `TrainingDiverged.solution`) or ``"zero signal"``.
     - `stats`: solver-specific numbers (e.g. the step size used).
     - `field`: the INR solver's continuous scene (a `rift_jax.Field`); None for the grid
       solvers.

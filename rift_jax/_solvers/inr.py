@@ -74,7 +74,7 @@ class Recipe:
         if self.learning_rate is not None:
             check_positive("Recipe: `learning_rate` (or None)", self.learning_rate)
         check_positive("Recipe: `adam_eps`", self.adam_eps)
-        if not isinstance(self.weight_decay, int | float) or not self.weight_decay >= 0:
+        if not isinstance(self.weight_decay, int | float | np.number) or not self.weight_decay >= 0:
             raise ValueError(f"Recipe: `weight_decay` must be ≥ 0, got {self.weight_decay!r}.")
         for name in ("halve_every", "batch_views"):
             if (value := getattr(self, name)) is not None:
@@ -127,13 +127,15 @@ def rift(
     - `model`: ``"rift-n"`` (`RiftN`), ``"rift-s"`` (`RiftS`), or an `AbstractINR` instance.
     - `recipe`: ``"default"``, ``"paper"`` or a `Recipe`.
     - `width`, `depth`: the INR's size when `model` is a name.
-    - `init`: a `Field` to start from (e.g. a previous result's, to resume a run); its
-      model replaces `model`.
+    - `init`: a `Field` to start from (e.g. a previous result's): a warm start, with a fresh
+      optimizer state and learning-rate schedule. Its model must be of the kind `model`
+      names (or `model` may be left as is when it is an instance).
     - `seed`: seeds the INR's initialisation and the order of the viewpoints.
     - `**overrides`: any `Recipe` field, replacing the recipe's value (e.g. ``epochs=50``).
 
-    **Returns:** a `Solution` whose `field` is the trained `Field` with the lowest mean
-    training loss over an epoch (the parameters at that epoch's end) and whose `rho` is its
+    **Returns:** a `Solution` whose `field` is the trained `Field` of the epoch with the
+    lowest mean training loss (the parameters before that epoch's last update: with one
+    step per epoch, exactly those the loss was measured at) and whose `rho` is its
     rendering. The history has per epoch the mean loss and the relative residual
     ‖y − Aρ‖/‖y‖ accumulated over the epoch's minibatches (each at its step's parameters).
 
@@ -160,7 +162,7 @@ def rift(
 
     n_views = fn.n_views
     batch = n_views if recipe.batch_views is None else min(recipe.batch_views, n_views)
-    steps = -(-n_views // batch)
+    steps = _steps(n_views, batch)
     spec = jax.tree.map(eqx.is_inexact_array, field)
     if not recipe.gain:
         spec = eqx.tree_at(lambda f: (f.log_gain, f.phase), spec, (False, False))
@@ -184,7 +186,6 @@ def rift(
             "best_loss": best_loss,
             "steps_per_epoch": steps,
             "batch_views": batch,
-            "gain": complex(best.gain),
         }
         return Solution(best.render(coords), history, stopped, stats, field=best)
 
@@ -193,9 +194,13 @@ def rift(
     with bar:
         for epoch in range(1, recipe.epochs + 1):
             epoch_start = time.perf_counter()
-            total_loss = total_residual = total_energy = 0.0
-            for k, index in enumerate(_batches(rng, n_views, batch), start=1):
-                new_params, new_state, loss, finite, residual = _step(
+            batches = _batches(rng, n_views, batch)
+            indices = replicated(jnp.asarray(batches))
+            before, step_losses, finite, step_residuals = params, [], [], []
+            for k in range(steps):
+                # device values only: one host sync per epoch lets JAX run ahead
+                before = params
+                params, opt_state, loss, ok, residual = _step(
                     params,
                     opt_state,
                     static,
@@ -204,31 +209,35 @@ def rift(
                     fn,
                     coords,
                     signal,
-                    replicated(jnp.asarray(index)),
+                    indices[k],
                 )
-                loss = float(loss)
-                if not (math.isfinite(loss) and bool(finite)):
-                    what = (
-                        f"the loss was {loss}"
-                        if not math.isfinite(loss)
-                        else "the gradient held NaN/inf values"
-                    )
-                    raise TrainingDiverged(
-                        f"{where}: {what} at epoch {epoch} (step {k} of {steps}); training "
-                        f"stopped. The parameters of epoch {best_epoch} (loss {best_loss:.4g}) "
-                        "are kept in this error's `.solution` (and `.result` from fit). Try a "
-                        "lower learning_rate or a clip_norm.",
-                        result(f"diverged at epoch {epoch}"),
-                    )
-                params, opt_state = new_params, new_state
-                total_loss += loss
-                total_residual += float(residual)
-                total_energy += float(energy[index].sum())
-            losses.append(total_loss / steps)
-            residuals.append(math.sqrt(total_residual / total_energy))
+                step_losses.append(loss)
+                finite.append(ok)
+                step_residuals.append(residual)
+            step_losses, finite, step_residuals = jax.device_get(
+                (step_losses, finite, step_residuals)
+            )
+            if bad := [k for k in range(steps) if not (np.isfinite(step_losses[k]) and finite[k])]:
+                k = bad[0]
+                what = (
+                    f"the loss was {step_losses[k]}"
+                    if not np.isfinite(step_losses[k])
+                    else "the gradient held NaN/inf values"
+                )
+                raise TrainingDiverged(
+                    f"{where}: {what} at epoch {epoch} (step {k + 1} of {steps}); training "
+                    f"stopped. The parameters of epoch {best_epoch} (loss {best_loss:.4g}) "
+                    "are kept in this error's `.solution` (and `.result` from fit). Try a "
+                    "lower learning_rate or a clip_norm.",
+                    result(f"diverged at epoch {epoch}"),
+                )
+            losses.append(float(np.mean(step_losses)))
+            residuals.append(math.sqrt(float(np.sum(step_residuals)) / energy[batches].sum()))
             seconds.append(time.perf_counter() - start)
             if losses[-1] < best_loss:
-                best_loss, best_params, best_epoch = losses[-1], params, epoch
+                # the parameters that the epoch's last loss was measured at (with one step per
+                # epoch, exactly the epoch's loss): never ones whose own loss is unknown
+                best_loss, best_params, best_epoch = losses[-1], before, epoch
             bar.set_postfix(
                 loss=f"{losses[-1]:.4g}",
                 best=f"{best_loss:.4g}",
@@ -264,12 +273,12 @@ def _initial_field(where, model, init, width, depth, extent, seed) -> Field:
             raise ValueError(
                 f"{where}: `init` must be a rift_jax.Field, got {type(init).__name__}."
             )
-        if not math.isclose(init.extent, extent, rel_tol=1e-5):
+        if isinstance(model, str) and model in MODELS and type(init.model) is not MODELS[model]:
             raise ValueError(
-                f"{where}: `init` was trained on extent {init.extent} m, this grid spans "
-                f"{extent} m."
+                f"{where}: `init` holds a {type(init.model).__name__}, but the method asks for "
+                f"{model!r} ({MODELS[model].__name__})."
             )
-        return init
+        return init  # it keeps its own extent (coordinate scale), whatever this grid's
     if isinstance(model, str):
         if model not in MODELS:
             raise ValueError(f"{where}: unknown `model` {model!r}; choose one of {sorted(MODELS)}.")
@@ -281,11 +290,15 @@ def _initial_field(where, model, init, width, depth, extent, seed) -> Field:
     return Field(model, extent)
 
 
+def _steps(n: int, size: int) -> int:
+    return -(-n // size)
+
+
 def _batches(rng: np.random.Generator, n: int, size: int) -> np.ndarray:
     """One epoch's viewpoint indices, (steps, size): a fresh permutation, filled up to a
     whole number of batches with its own first entries (one batch shape, one compilation)."""
     order = rng.permutation(n)
-    steps = -(-n // size)
+    steps = _steps(n, size)
     return np.concatenate([order, order[: steps * size - n]]).reshape(steps, size)
 
 
