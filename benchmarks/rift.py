@@ -31,6 +31,7 @@ import numpy as np
 import rift_jax as rj
 from experiments._output import save_figure, write_atomic, write_json
 
+from ._fitting import fit_and_evaluate
 from ._timing import complex_matmul_rate
 
 # The paper's Tables 1, 4 and 5: (m-SSIM, m-COS, t-IoU, p-RMSE).
@@ -110,17 +111,17 @@ def run(
             if any(row["scene"] == name and row["run"] == label for row in rows):
                 continue
             train, test = pool.split(n, cfg.n_test, seed=seed)
-            result = rj.fit(
+            result, metrics = fit_and_evaluate(
                 scene,
                 train,
+                test,
                 radar=radar,
                 method=method,
                 granularity=cfg.inverse,
                 seed=seed,
                 progress=progress,
-                **options,
+                options=options,
             )
-            metrics = result.evaluate(scene, test)
             epochs = len(result.history)
             rows.append(
                 {"scene": name, "run": label, "method": method, "n_train": n}

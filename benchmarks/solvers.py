@@ -32,6 +32,7 @@ import numpy as np
 import rift_jax as rj
 from experiments._output import save_figure, write_atomic, write_json
 
+from ._fitting import fit_and_evaluate
 from ._timing import complex_matmul_rate
 
 # Paper Table 1 (cube), LS rows: m-SSIM, m-COS, t-IoU, p-RMSE.
@@ -112,17 +113,17 @@ def run(cfg: Config, seed: int = 0, progress: bool = True, checkpoint=None) -> d
     for n in cfg.n_train:
         train, test = pool.split(n, cfg.n_test, seed=seed)
         for method, options in cfg.budgets.items():
-            result = rj.fit(
+            result, metrics = fit_and_evaluate(
                 scene,
                 train,
+                test,
                 radar=radar,
                 method=method,
                 granularity=cfg.inverse,
                 seed=seed,
                 progress=progress,
-                **options,
+                options=options,
             )
-            metrics = result.evaluate(scene, test)
             rows.append(
                 {"n_train": n, "method": method, "seconds": result.seconds, **metrics}
                 | {"iterations": len(result.history), "options": options}

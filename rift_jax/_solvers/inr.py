@@ -30,6 +30,7 @@ from tqdm.auto import tqdm
 from .._losses import LOSSES
 from .._models import MODELS, AbstractINR, Field
 from .._operator import GRT, GRTOperator, replicated
+from .._precision import to_float64
 from .._validation import check_positive, check_positive_int
 from ._common import as_complex, as_pair, check_problem, realified, zero_signal
 from ._solution import History, Solution, TrainingDiverged
@@ -149,7 +150,8 @@ def rift(
     fn = operator.fn
     if (solution := zero_signal(where, signal, jnp.zeros(fn.n_points, jnp.complex64))) is not None:
         return solution
-    points = np.asarray(fn.points.hi, np.float64) + np.asarray(fn.points.lo, np.float64)
+    with jax.enable_x64(True):
+        points = np.asarray(to_float64(fn.points))
     extent = float(np.max(np.abs(points))) or 1.0
     coords = jnp.asarray(points, jnp.float32)
     field = _initial_field(where, model, init, width, depth, extent, seed)
@@ -196,7 +198,7 @@ def rift(
             epoch_start = time.perf_counter()
             batches = _batches(rng, n_views, batch)
             indices = replicated(jnp.asarray(batches))
-            before, step_losses, finite, step_residuals = params, [], [], []
+            step_losses, finite, step_residuals = [], [], []
             for k in range(steps):
                 # device values only: one host sync per epoch lets JAX run ahead
                 before = params
