@@ -30,31 +30,13 @@ import numpy as np
 
 import rift_jax as rj
 from experiments._output import save_figure, write_atomic, write_json
+from experiments._paper import TABLES
+from experiments._runner import fit_and_evaluate
 
-from ._fitting import fit_and_evaluate
 from ._timing import complex_matmul_rate
 
 # The paper's Tables 1, 4 and 5: (m-SSIM, m-COS, t-IoU, p-RMSE).
-PAPER = {
-    "cube": {
-        "LS-100": (0.0704, 0.5698, 0.0578, 0.0155),
-        "LS-1000": (0.1706, 0.8511, 0.2183, 0.0150),
-        "RIFT(N)-100": (0.6395, 0.9792, 0.3677, 0.0147),
-        "RIFT(S)-100": (0.1435, 0.6957, 0.3302, 0.0152),
-    },
-    "sphere": {
-        "LS-100": (0.0762, 0.5986, 0.0897, 0.0151),
-        "LS-1000": (0.2890, 0.8886, 0.2736, 0.0146),
-        "RIFT(N)-100": (0.8343, 0.9917, 0.3540, 0.0187),
-        "RIFT(S)-100": (0.2858, 0.9473, 0.3412, 0.0145),
-    },
-    "pyramid": {
-        "LS-100": (0.1163, 0.5584, 0.0576, 0.0151),
-        "LS-1000": (0.4258, 0.8689, 0.1822, 0.0146),
-        "RIFT(N)-100": (0.8926, 0.9840, 0.2549, 0.0185),
-        "RIFT(S)-100": (0.0266, 0.1774, 0.0581, 0.0159),
-    },
-}
+PAPER = {scene: TABLES[scene] for scene in ("cube", "sphere", "pyramid")}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -31,8 +31,8 @@ import numpy as np
 
 import rift_jax as rj
 from experiments._output import save_figure, write_atomic, write_json
+from experiments._runner import fit_and_evaluate
 
-from ._fitting import fit_and_evaluate
 from ._timing import complex_matmul_rate
 
 # Paper Table 1 (cube), LS rows: m-SSIM, m-COS, t-IoU, p-RMSE.

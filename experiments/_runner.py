@@ -1,0 +1,294 @@
+"""What every paper experiment does: draw viewpoints, reconstruct, score, save, resume.
+
+An experiment is a list of `Run`s over named scenes. `execute` fits each run with
+`rift_jax.fit`, scores it with `FitResult.evaluate`, and after every run writes
+``results.json`` (config, metrics, histories, wall times, versions) and
+``reconstructions.npz`` (every reconstruction and the truths on the inverse grid) atomically,
+then calls the experiment's `report` to redraw its table and figures. ``--resume`` keeps the
+runs already written and does only the rest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import io
+import json
+import os
+import platform
+import sys
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+import numpy as np
+
+import rift_jax as rj
+
+from ._output import write_atomic, write_json
+
+MODEL_LABELS = {"rift-n": "RIFT(N)", "rift-s": "RIFT(S)"}
+"""The paper's names of the `fit` methods that train an INR."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """One reconstruction: ``method`` from ``n_train`` viewpoints of scene ``scene``."""
+
+    scene: str
+    label: str  # the paper's name: "LS-100", "RIFT(N)-1000", ...
+    method: str  # a `rift_jax.fit` method
+    n_train: int
+    options: Mapping = dataclasses.field(default_factory=dict)  # passed to `fit`
+
+
+def rift_options(n_train: int, steps: int, batch_views: int = 10) -> dict:
+    """Options giving a RIFT run ``steps`` optimizer steps whatever its number of views, so
+    RIFT-100 and RIFT-1000 get the same compute; the learning rate halves three times, as in
+    the default recipe (every 25 of 100 epochs)."""
+    epochs = max(1, round(steps * batch_views / n_train))
+    return {"epochs": epochs, "halve_every": max(1, epochs // 4), "batch_views": batch_views}
+
+
+def draw(pool: rj.Viewpoints, n_train: int, n_test: int, seed: int):
+    """(train, test): one seeded test set shared by every run, and training sets drawn from
+    the rest in one fixed order, so LS-100 ⊂ LS-200 ⊂ ... and all runs face the same test."""
+    if n_train + n_test > len(pool):
+        raise ValueError(
+            f"draw: {n_train} training + {n_test} test viewpoints exceed the {len(pool)} in "
+            "the pool."
+        )
+    order = np.random.default_rng(seed).permutation(len(pool))
+    test = pool.subset(np.sort(order[:n_test]))
+    return pool.subset(np.sort(order[n_test : n_test + n_train])), test
+
+
+def fit_and_evaluate(scene, train, test, *, radar, method, granularity, seed, progress, options):
+    """Reconstruct ``scene`` from its signals at ``train`` on the inverse grid of
+    ``granularity`` and score it against the truth at ``test``: (FitResult, metrics).
+
+    A RIFT run that diverges is scored on its best parameters before the divergence, and
+    ``metrics["diverged"]`` says where (the paper, too, reports its failed runs)."""
+    try:
+        result = rj.fit(
+            scene,
+            train,
+            radar=radar,
+            method=method,
+            granularity=granularity,
+            seed=seed,
+            progress=progress,
+            **options,
+        )
+        diverged = None
+    except rj.solvers.TrainingDiverged as error:
+        result, diverged = error.result, str(error)
+        print(f"{method}: {diverged}; scoring the best parameters before it", flush=True)
+    return result, result.evaluate(scene, test) | {"diverged": diverged}
+
+
+def versions() -> dict:
+    import equinox
+    import jax
+    import jaxlib
+    import lineax
+    import optax
+    import optimistix
+    import skimage
+
+    return {
+        "rift_jax": rj.__version__,
+        "jax": jax.__version__,
+        "jaxlib": jaxlib.__version__,
+        "equinox": equinox.__version__,
+        "optax": optax.__version__,
+        "lineax": lineax.__version__,
+        "optimistix": optimistix.__version__,
+        "numpy": np.__version__,
+        "scikit-image": skimage.__version__,
+        "python": sys.version.split()[0],
+        "platform": platform.platform(),
+        "devices": [str(d) for d in jax.devices()],
+        "cpu_count": os.cpu_count(),
+    }
+
+
+def execute(
+    name: str,
+    scale: str,
+    cfg,
+    scenes: Mapping[str, rj.Scene],
+    runs: list[Run],
+    *,
+    pool: rj.Viewpoints,
+    radar: rj.Radar,
+    inverse: float,
+    n_test: int,
+    seed: int,
+    out: Path,
+    report: Callable[[dict, dict, bool], None],
+    analyse: Callable[[dict, np.ndarray, np.ndarray], dict] | None = None,
+    resume: bool = False,
+    progress: bool = True,
+) -> dict:
+    """Do every run not yet in ``out`` (with ``resume``), writing after each. Returns the
+    results dict (as in ``results.json``).
+
+    ``report(results, volumes, figures)`` writes the experiment's table, and its figures
+    when ``figures`` (at the end, and at most once a minute before: drawing takes seconds).
+    ``analyse(row, reconstruction, truth)`` (both on the inverse grid) adds
+    experiment-specific numbers to a run's row; they are derived from the saved
+    reconstructions at every save, so ``resume`` also refreshes them."""
+    out = Path(out)
+    config = json.loads(json.dumps(dataclasses.asdict(cfg)))  # tuples as JSON lists
+    results = {"experiment": name, "scale": scale, "config": config, "seed": seed}
+    results |= {"rows": [], "histories": {}, "wall_seconds": 0.0}
+    volumes: dict[str, np.ndarray] = {}
+    if resume and (out / "results.json").exists():
+        done = json.loads((out / "results.json").read_text())
+        if (done["config"], done["seed"]) != (config, seed):
+            raise SystemExit(
+                f"--resume: {out / 'results.json'} was measured with another config or seed; "
+                "choose another --out or drop --resume."
+            )
+        results = done
+        with np.load(out / "reconstructions.npz") as saved:
+            volumes = {key: saved[key] for key in saved.files}
+        print(f"resuming: {len(done['rows'])} runs kept from {out / 'results.json'}", flush=True)
+    results["versions"] = versions()
+    for key, scene in scenes.items():
+        volumes[f"truth/{key}"] = np.asarray(scene.resample(inverse).reflectivity)
+
+    drawn = time.perf_counter()
+
+    def save(final: bool):
+        nonlocal drawn
+        if analyse is not None:
+            for row in results["rows"]:
+                volume = volumes[f"{row['scene']}/{row['run']}"]
+                row |= analyse(row, volume, volumes[f"truth/{row['scene']}"])
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, **volumes)
+        write_atomic(out / "reconstructions.npz", buffer.getvalue())
+        write_json(out / "results.json", results)
+        figures = final or time.perf_counter() - drawn > 60
+        report(results, volumes, figures)
+        if figures:
+            drawn = time.perf_counter()
+
+    for run in runs:
+        if any(r["scene"] == run.scene and r["run"] == run.label for r in results["rows"]):
+            continue
+        train, test = draw(pool, run.n_train, n_test, seed)
+        start = time.perf_counter()
+        result, metrics = fit_and_evaluate(
+            scenes[run.scene],
+            train,
+            test,
+            radar=radar,
+            method=run.method,
+            granularity=inverse,
+            seed=seed,
+            progress=progress,
+            options=dict(run.options),
+        )
+        wall = time.perf_counter() - start
+        history = result.history
+        row = {"scene": run.scene, "run": run.label, "method": run.method}
+        row |= {"n_train": run.n_train, "options": dict(run.options)} | metrics
+        row |= {
+            "fit_seconds": result.seconds,
+            "wall_seconds": wall,  # fit + evaluation (test signals of truth and prediction)
+            "iterations": len(history),
+            "seconds_per_iteration": float(np.median(np.diff(history.seconds)))
+            if len(history) > 1
+            else result.seconds,
+            "stopped": str(result.stopped),
+        }
+        results["rows"].append(row)
+        results["wall_seconds"] += wall
+        results["histories"][f"{run.scene}/{run.label}"] = {
+            "seconds": history.seconds.tolist(),
+            "residual": history.residual.tolist(),
+            "loss": None if history.loss is None else history.loss.tolist(),
+        }
+        volumes[f"{run.scene}/{run.label}"] = np.asarray(result.scene.reflectivity)
+        print(
+            f"{run.scene} {run.label}: m-SSIM {row['m_ssim']:.4f}  m-COS {row['m_cos']:.4f}  "
+            f"t-IoU {row['t_iou']:.4f}  p-RMSE {row['p_rmse']:.4f}  ({wall:.0f} s)",
+            flush=True,
+        )
+        save(final=False)
+    save(final=True)
+    return results
+
+
+def parse(argv, doc: str, scales: Mapping, name: str):
+    """The command line every experiment shares: (config, args) with ``args.out`` set."""
+    parser = argparse.ArgumentParser(
+        prog=f"python -m experiments.{name}",
+        description=doc.splitlines()[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--scale",
+        choices=list(scales),
+        default="default",
+        help="quick: seconds, for tests; default: ≤ 10 minutes on a 2-core CPU; paper: the "
+        "paper's sizes (hours)",
+    )
+    parser.add_argument("--out", type=Path, default=None, help="default: results/NAME_SCALE")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--resume", action="store_true", help="keep the runs already in --out")
+    parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    args = parser.parse_args(argv)
+    args.out = args.out or Path("results") / f"{name}_{args.scale}"
+    return scales[args.scale], args
+
+
+def command(argv, doc: str, scales: Mapping, name: str, main: Callable[..., dict]) -> dict:
+    """Parse the shared command line and call ``main(cfg, out=, scale=, seed=, resume=,
+    progress=)``."""
+    cfg, args = parse(argv, doc, scales, name)
+    return main(
+        cfg,
+        out=args.out,
+        scale=args.scale,
+        seed=args.seed,
+        resume=args.resume,
+        progress=not args.no_progress,
+    )
+
+
+def table(rows, columns: list[tuple[str, Callable[[dict], str]]]) -> str:
+    """A Markdown table of ``rows`` with ``(header, cell(row))`` columns."""
+    head = "| " + " | ".join(h for h, _ in columns) + " |"
+    rule = "|" + "---|" * len(columns)
+    body = ["| " + " | ".join(cell(row) for _, cell in columns) + " |" for row in rows]
+    return "\n".join([head, rule, *body])
+
+
+def run_cell(row: dict) -> str:
+    """The run's label, marked ‡ if its training diverged (scored before the divergence)."""
+    return row["run"] + (" ‡" if row.get("diverged") else "")
+
+
+METRIC_COLUMNS = [
+    ("m-SSIM", lambda r: f"{r['m_ssim']:.4f}"),
+    ("m-COS", lambda r: f"{r['m_cos']:.4f}"),
+    ("t-IoU", lambda r: f"{r['t_iou']:.4f}"),
+    ("p-RMSE (rad)", lambda r: f"{r['p_rmse']:.3f}"),
+    ("residual", lambda r: f"{r['residual']:.3f}"),
+    ("iterations", lambda r: str(r["iterations"])),
+    ("s", lambda r: f"{r['wall_seconds']:.0f}"),
+]
+
+
+def environment_line(results: dict) -> str:
+    v = results["versions"]
+    return (
+        f"Seed {results['seed']}; {len(results['rows'])} runs in "
+        f"{results['wall_seconds'] / 60:.1f} min (fit + evaluation) on {v['cpu_count']} CPU "
+        f"cores ({', '.join(v['devices'])}); rift_jax {v['rift_jax']}, jax {v['jax']}, "
+        f"Python {v['python']}."
+    )
