@@ -31,7 +31,7 @@ import numpy as np
 import rift_jax as rj
 from experiments._output import save_figure, write_atomic, write_json
 from experiments._paper import TABLES
-from experiments._runner import fit_and_evaluate
+from experiments._runner import fit_and_evaluate, run_cell
 
 from ._timing import complex_matmul_rate
 
@@ -137,7 +137,7 @@ def _row_md(row: dict) -> str:
     paper = PAPER.get(row["scene"], {}).get(row["run"])
     paper = " / ".join(f"{v:.4f}" for v in paper) if paper else "–"
     return (
-        f"| {row['scene']} | {row['run']} | {row['m_ssim']:.4f} | {row['m_cos']:.4f} | "
+        f"| {row['scene']} | {run_cell(row)} | {row['m_ssim']:.4f} | {row['m_cos']:.4f} | "
         f"{row['t_iou']:.4f} | {row['p_rmse']:.4f} | {row['residual']:.4f} | "
         f"{row['seconds_per_iteration']:.2f} | {row['seconds']:.0f} | {paper} |"
     )

@@ -40,7 +40,6 @@ def mip_grid(
     fig, axes = plt.subplots(
         n_rows, n_cols, figsize=(2.3 * n_cols + 0.8, 2.3 * n_rows + 0.5), squeeze=False
     )
-    span = [-extent, extent, -extent, extent]
     image = None
     for i, row in enumerate(panels):
         for j in range(n_cols):
@@ -49,6 +48,8 @@ def mip_grid(
                 ax.axis("off")
                 continue
             name, volume = row[j]
+            edge = extent * len(volume) / (len(volume) - 1)  # grid points are cell centres
+            span = [-edge, edge, -edge, edge]
             image = ax.imshow(
                 mip(volume, plane), origin="lower", extent=span, cmap="magma", vmin=0, vmax=1
             )

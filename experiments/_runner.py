@@ -16,6 +16,7 @@ import io
 import json
 import os
 import platform
+import subprocess
 import sys
 import time
 from collections.abc import Callable, Mapping
@@ -43,11 +44,12 @@ class Run:
 
 
 def rift_options(n_train: int, steps: int, batch_views: int = 10) -> dict:
-    """Options giving a RIFT run ``steps`` optimizer steps whatever its number of views, so
-    RIFT-100 and RIFT-1000 get the same compute; the learning rate halves three times, as in
-    the default recipe (every 25 of 100 epochs)."""
+    """Options giving a RIFT run about ``steps`` optimizer steps whatever its number of
+    views, so RIFT-100 and RIFT-1000 get the same compute; the learning rate halves three
+    times (after a quarter, half and three quarters of the steps), as in the default
+    recipe (every 25 of 100 epochs)."""
     epochs = max(1, round(steps * batch_views / n_train))
-    return {"epochs": epochs, "halve_every": max(1, epochs // 4), "batch_views": batch_views}
+    return {"epochs": epochs, "halve_every": epochs / 4, "batch_views": batch_views}
 
 
 def draw(pool: rj.Viewpoints, n_train: int, n_test: int, seed: int):
@@ -96,7 +98,14 @@ def versions() -> dict:
     import optimistix
     import skimage
 
+    try:  # the commit that produced the results, when run from a git checkout
+        commit = subprocess.run(
+            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = None
     return {
+        "git_commit": commit,
         "rift_jax": rj.__version__,
         "jax": jax.__version__,
         "jaxlib": jaxlib.__version__,
@@ -151,11 +160,15 @@ def execute(
                 f"--resume: {out / 'results.json'} was measured with another config or seed; "
                 "choose another --out or drop --resume."
             )
+        if not (out / "reconstructions.npz").exists():
+            raise SystemExit(f"--resume: {out / 'reconstructions.npz'} is missing.")
         results = done
         with np.load(out / "reconstructions.npz") as saved:
             volumes = {key: saved[key] for key in saved.files}
+        results.setdefault("resumed_with", []).append(versions())  # the first run's stay
         print(f"resuming: {len(done['rows'])} runs kept from {out / 'results.json'}", flush=True)
-    results["versions"] = versions()
+    else:
+        results["versions"] = versions()
     for key, scene in scenes.items():
         volumes[f"truth/{key}"] = np.asarray(scene.resample(inverse).reflectivity)
 
@@ -227,7 +240,7 @@ def parse(argv, doc: str, scales: Mapping, name: str):
     """The command line every experiment shares: (config, args) with ``args.out`` set."""
     parser = argparse.ArgumentParser(
         prog=f"python -m experiments.{name}",
-        description=doc.splitlines()[0],
+        description=doc.split("\n\n")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
@@ -235,7 +248,7 @@ def parse(argv, doc: str, scales: Mapping, name: str):
         choices=list(scales),
         default="default",
         help="quick: seconds, for tests; default: ≤ 10 minutes on a 2-core CPU; paper: the "
-        "paper's sizes (hours)",
+        "paper's sizes (hours to days)",
     )
     parser.add_argument("--out", type=Path, default=None, help="default: results/NAME_SCALE")
     parser.add_argument("--seed", type=int, default=0)

@@ -46,7 +46,8 @@ class Recipe:
     - `learning_rate`, `weight_decay`, `adam_eps`: `optax.adamw`'s (weight decay applies to
       the INR, not to the gain). ``learning_rate=None`` takes the model's own default
       (`AbstractINR.learning_rate`: 1e-2 for RiftN, 1e-3 for RiftS).
-    - `halve_every`: halve the learning rate every this many epochs (None: constant).
+    - `halve_every`: halve the learning rate every this many epochs, a fraction allowed
+      (counted in optimizer steps, at least one; None: constant).
     - `batch_views`: viewpoints per optimizer step (None: all, one step per epoch). An epoch
       visits the viewpoints in a fresh seeded order; when the batch does not divide them,
       the last batch is filled up with the epoch's first viewpoints.
@@ -59,7 +60,7 @@ class Recipe:
     epochs: int = 100
     learning_rate: float | None = None
     weight_decay: float = 1e-2
-    halve_every: int | None = 25
+    halve_every: float | None = 25
     batch_views: int | None = 10
     clip_norm: float | None = 1.0
     gain: bool = True
@@ -77,9 +78,10 @@ class Recipe:
         check_positive("Recipe: `adam_eps`", self.adam_eps)
         if not isinstance(self.weight_decay, int | float | np.number) or not self.weight_decay >= 0:
             raise ValueError(f"Recipe: `weight_decay` must be ≥ 0, got {self.weight_decay!r}.")
-        for name in ("halve_every", "batch_views"):
-            if (value := getattr(self, name)) is not None:
-                check_positive_int(f"Recipe: `{name}` (or None)", value)
+        if self.halve_every is not None:
+            check_positive("Recipe: `halve_every` (or None)", self.halve_every)
+        if self.batch_views is not None:
+            check_positive_int("Recipe: `batch_views` (or None)", self.batch_views)
         if self.clip_norm is not None:
             check_positive("Recipe: `clip_norm` (or None)", self.clip_norm)
         if not isinstance(self.gain, bool):
@@ -304,15 +306,23 @@ def _batches(rng: np.random.Generator, n: int, size: int) -> np.ndarray:
     return np.concatenate([order, order[: steps * size - n]]).reshape(steps, size)
 
 
+def _schedule(recipe: Recipe, steps_per_epoch: int):
+    """The learning rate per optimizer step: constant, or halved every `halve_every` epochs."""
+    if recipe.halve_every is None:
+        return recipe.learning_rate
+    every = max(1, round(recipe.halve_every * steps_per_epoch))  # in steps
+    return optax.exponential_decay(recipe.learning_rate, every, decay_rate=0.5, staircase=True)
+
+
 @functools.cache
 def _optimizer(recipe: Recipe, steps_per_epoch: int) -> optax.GradientTransformation:
     """AdamW with the recipe's schedule and clipping; cached so that jit caches hit."""
-    lr = recipe.learning_rate
-    if recipe.halve_every is not None:
-        lr = optax.exponential_decay(
-            lr, recipe.halve_every * steps_per_epoch, decay_rate=0.5, staircase=True
-        )
-    adamw = optax.adamw(lr, eps=recipe.adam_eps, weight_decay=recipe.weight_decay, mask=_decay_mask)
+    adamw = optax.adamw(
+        _schedule(recipe, steps_per_epoch),
+        eps=recipe.adam_eps,
+        weight_decay=recipe.weight_decay,
+        mask=_decay_mask,
+    )
     if recipe.clip_norm is None:
         return adamw
     return optax.chain(optax.clip_by_global_norm(recipe.clip_norm), adamw)
