@@ -31,7 +31,7 @@ import numpy as np
 import rift_jax as rj
 from experiments._output import save_figure, write_atomic, write_json
 from experiments._paper import TABLES
-from experiments._runner import fit_and_evaluate, run_cell
+from experiments._runner import fit_and_evaluate, history_record, run_cell, seconds_per_iteration
 
 from ._timing import complex_matmul_rate
 
@@ -104,22 +104,13 @@ def run(
                 progress=progress,
                 options=options,
             )
-            epochs = len(result.history)
             rows.append(
                 {"scene": name, "run": label, "method": method, "n_train": n}
                 | metrics
-                | {"seconds": result.seconds, "iterations": epochs, "options": options}
-                | {
-                    "seconds_per_iteration": float(np.median(np.diff(result.history.seconds)))
-                    if epochs > 1
-                    else result.seconds
-                }
+                | {"seconds": result.seconds, "iterations": len(result.history)}
+                | {"options": options, "seconds_per_iteration": seconds_per_iteration(result)}
             )
-            histories[f"{name}/{label}"] = {
-                "seconds": result.history.seconds.tolist(),
-                "residual": result.history.residual.tolist(),
-                "loss": None if result.history.loss is None else result.history.loss.tolist(),
-            }
+            histories[f"{name}/{label}"] = history_record(result.history)
             print(_row_md(rows[-1]), flush=True)
             rows.sort(key=lambda r: rank.get((r["scene"], r["run"]), len(rank)))
             if checkpoint:

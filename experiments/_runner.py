@@ -60,9 +60,8 @@ def draw(pool: rj.Viewpoints, n_train: int, n_test: int, seed: int):
             f"draw: {n_train} training + {n_test} test viewpoints exceed the {len(pool)} in "
             "the pool."
         )
-    order = np.random.default_rng(seed).permutation(len(pool))
-    test = pool.subset(np.sort(order[:n_test]))
-    return pool.subset(np.sort(order[n_test : n_test + n_train])), test
+    test, train = pool.split(n_test, n_train, seed=seed)  # split's first draw is the test set
+    return train, test
 
 
 def fit_and_evaluate(scene, train, test, *, radar, method, granularity, seed, progress, options):
@@ -87,6 +86,21 @@ def fit_and_evaluate(scene, train, test, *, radar, method, granularity, seed, pr
         result, diverged = error.result, str(error)
         print(f"{method}: {diverged}; scoring the best parameters before it", flush=True)
     return result, result.evaluate(scene, test) | {"diverged": diverged}
+
+
+def history_record(history) -> dict:
+    """A run's `History` as JSON: seconds, relative residual and (RIFT) loss per iteration."""
+    return {
+        "seconds": history.seconds.tolist(),
+        "residual": history.residual.tolist(),
+        "loss": None if history.loss is None else history.loss.tolist(),
+    }
+
+
+def seconds_per_iteration(result) -> float:
+    """The median seconds per iteration (sweep or epoch); the whole fit if it had one."""
+    seconds = result.history.seconds
+    return float(np.median(np.diff(seconds))) if len(seconds) > 1 else result.seconds
 
 
 def versions() -> dict:
@@ -213,18 +227,12 @@ def execute(
             "fit_seconds": result.seconds,
             "wall_seconds": wall,  # fit + evaluation (test signals of truth and prediction)
             "iterations": len(history),
-            "seconds_per_iteration": float(np.median(np.diff(history.seconds)))
-            if len(history) > 1
-            else result.seconds,
+            "seconds_per_iteration": seconds_per_iteration(result),
             "stopped": str(result.stopped),
         }
         results["rows"].append(row)
         results["wall_seconds"] += wall
-        results["histories"][f"{run.scene}/{run.label}"] = {
-            "seconds": history.seconds.tolist(),
-            "residual": history.residual.tolist(),
-            "loss": None if history.loss is None else history.loss.tolist(),
-        }
+        results["histories"][f"{run.scene}/{run.label}"] = history_record(history)
         volumes[f"{run.scene}/{run.label}"] = np.asarray(result.scene.reflectivity)
         print(
             f"{run.scene} {run.label}: m-SSIM {row['m_ssim']:.4f}  m-COS {row['m_cos']:.4f}  "
