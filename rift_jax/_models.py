@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float, PRNGKeyArray
 
+from ._precision import exact_products
 from ._validation import check_positive, check_positive_int
 
 
@@ -159,6 +160,7 @@ class Field(eqx.Module):
     def gain(self) -> Complex[Array, ""]:
         return jnp.exp(jax.lax.complex(self.log_gain, self.phase))
 
+    @exact_products  # the INR's products in full float32 on every backend (no TF32)
     def __call__(self, xyz: Float[Array, " 3"]) -> Complex[Array, ""]:
         re, im = self.model(xyz / self.extent)
         return self.gain * jax.lax.complex(re, im)

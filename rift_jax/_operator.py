@@ -8,24 +8,24 @@ use.
 Viewpoints are independent, so they are spread over the available devices (with
 `shard_map`; on CPU, rift_jax starts JAX with one host device per core, see
 `rift_jax/__init__.py`) and mapped sequentially (CPU) or in vmapped batches (GPU) on each.
+A single view (`view`, `view_adjoint`), or fewer views than devices, splits its voxels over
+the devices instead (`rift_jax._sharding`). The products are jitted, so plain calls compile
+once per shape.
 """
 
 from __future__ import annotations
-
-import functools
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
 import numpy as np
-from jax.sharding import AxisType
-from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Complex, Float, Int
 
 from . import _grt
 from ._geometry import Radar, Viewpoints, antenna_positions
 from ._precision import Float64Pair, leading, split, to_float64
+from ._sharding import over_views, split_views
 from ._validation import as_finite_array, check_positive_int, is_concrete
 
 
@@ -79,31 +79,42 @@ class GRT(eqx.Module):
         angles = jax.tree.map(lambda a: a[index], (self.azimuth, self.polar))
         return eqx.tree_at(lambda g: (g.azimuth, g.polar), self, angles)
 
-    def view(self, rho: Complex[Array, " n_points"], index) -> Complex[Array, "f m n"]:
-        """The signal of viewpoint ``index`` (may be traced): one row block of the operator."""
+    def view(
+        self, rho: Complex[Array, " n_points"], index, *, split_voxels: bool = True
+    ) -> Complex[Array, "f m n"]:
+        """The signal of viewpoint ``index`` (may be traced): one row block of the operator.
+        Its voxels are split over the devices (``split_voxels=False``: not, e.g. inside a
+        `shard_map` of your own over the voxels, as block Kaczmarz does)."""
         rho = jnp.asarray(rho, jnp.complex64)
-        return self._kernel(_grt._forward_kernel, rho, *self._angles(index))
+        angles = self._angles(index)
+        return self._kernel(_grt.forward_view, rho, *angles, split=split_voxels)
 
-    def view_adjoint(self, signal: Complex[Array, "f m n"], index) -> Complex[Array, " n_points"]:
+    def view_adjoint(
+        self, signal: Complex[Array, "f m n"], index, *, split_voxels: bool = True
+    ) -> Complex[Array, " n_points"]:
         """Backprojection of one viewpoint's signal: the adjoint of `view`."""
         signal = jnp.asarray(signal, jnp.complex64)
-        return self._kernel(_grt._adjoint_kernel, signal, *self._angles(index))
+        angles = self._angles(index)
+        return self._kernel(_grt.adjoint_view, signal, *angles, split=split_voxels)
 
+    @eqx.filter_jit
     def __call__(self, rho: Complex[Array, " n_points"]) -> Complex[Array, "v f m n"]:
         """All viewpoints' signals, (n_views, n_freq, n_tx, n_rx)."""
         rho = jnp.asarray(rho, jnp.complex64)
         if rho.shape != (self.n_points,):
             raise ValueError(f"GRT: `rho` must have shape ({self.n_points},), got {rho.shape}.")
+        per_view = not split_views(self.n_views)  # else each view splits its voxels
 
         def local(azimuth, polar, rho):
             return jax.lax.map(
-                lambda ap: self._kernel(_grt._forward_kernel, rho, *ap),
+                lambda ap: self._kernel(_grt.forward_view, rho, *ap, split=per_view),
                 (azimuth, polar),
                 batch_size=_views_per_batch(),
             )
 
-        return _over_views(local, self.azimuth, self.polar, rho, reduce=False)[: self.n_views]
+        return over_views(local, self.azimuth, self.polar, rho, reduce=False)[: self.n_views]
 
+    @eqx.filter_jit
     def adjoint(self, signal: Complex[Array, "v f m n"]) -> Complex[Array, " n_points"]:
         """Backprojection of all viewpoints, Σ_i view_adjoint(signal[i], i): the exact
         conjugate transpose of `__call__`."""
@@ -112,19 +123,20 @@ class GRT(eqx.Module):
             raise ValueError(
                 f"GRT.adjoint: `signal` must have shape {self.out_shape}, got {signal.shape}."
             )
+        per_view = not split_views(self.n_views)
 
         def local(azimuth, polar, signal):
             def step(acc, xs):
                 a, p, s = xs
-                return acc + self._kernel(_grt._adjoint_kernel, s, a, p), None
+                return acc + self._kernel(_grt.adjoint_view, s, a, p, split=per_view), None
 
             leaves = jax.tree.leaves((azimuth, polar))  # per-device inside shard_map
             zero = _grt._zeros((self.n_points,), signal.dtype, *leaves)
             return jax.lax.scan(step, zero, (azimuth, polar, signal))[0]
 
-        return _over_views(local, self.azimuth, self.polar, signal, reduce=True)
+        return over_views(local, self.azimuth, self.polar, signal, reduce=True)
 
-    def _kernel(self, kernel, data, azimuth, polar):
+    def _kernel(self, kernel, data, azimuth, polar, *, split: bool):
         points, tx, rx, freqs = self._geometry(azimuth, polar)
         return kernel(
             points,
@@ -135,57 +147,8 @@ class GRT(eqx.Module):
             plan=_grt.frequency_plan(freqs),
             near_field=self.radar.near_field,
             chunk=self.chunk_size,
+            split=split,
         )
-
-
-_AXIS = "views"
-
-
-def _over_views(local, azimuth, polar, data, *, reduce: bool):
-    """Run ``local(azimuth, polar, data)`` on shards of the viewpoints, one per device.
-
-    ``reduce=False``: ``data`` is replicated and per-view outputs are concatenated (padded
-    views included; the caller slices them off). ``reduce=True``: ``data`` is per-view (sharded
-    like the angles, zero for padding) and the per-device sums are added together.
-    """
-    n_dev = jax.device_count()
-    n_views = leading(azimuth)
-    if n_dev == 1 or n_views < n_dev:
-        return local(azimuth, polar, data)
-    pad = -n_views % n_dev
-    azimuth, polar = jax.tree.map(lambda a: jnp.pad(a, (0, pad)), (azimuth, polar))
-    mesh = device_mesh(_AXIS)
-    if reduce:
-        data = jnp.pad(data, ((0, pad),) + ((0, 0),) * (data.ndim - 1))
-        body = functools.partial(_summed, local)
-        specs, out_spec = (P(_AXIS), P(_AXIS), P(_AXIS)), P()
-    else:
-        body = local
-        specs, out_spec = (P(_AXIS), P(_AXIS), P()), P(_AXIS)
-    return jax.shard_map(body, mesh=mesh, in_specs=specs, out_specs=out_spec)(azimuth, polar, data)
-
-
-def device_mesh(axis: str) -> jax.sharding.Mesh:
-    """A one-axis mesh over every device (one per CPU core on CPU, see `rift_jax/__init__`)."""
-    devices = jax.devices()
-    return jax.make_mesh((len(devices),), (axis,), devices=devices, axis_types=(AxisType.Auto,))
-
-
-def replicated(tree):
-    """``tree``'s arrays copied to every device.
-
-    Pass the inputs of a jitted *loop* around the operator (lineax, optimistix, jaxopt, a
-    `fori_loop`) through this: XLA does not partition a jit whose inputs all sit on one
-    device, and a `shard_map` nested in its loop then fails to compile on CPU ("No
-    registered implementation for ... GlobalToLocalShape").
-    """
-    if jax.device_count() == 1:
-        return tree
-    return jax.device_put(tree, jax.sharding.NamedSharding(device_mesh("replicated"), P()))
-
-
-def _summed(local, azimuth, polar, data):
-    return jax.lax.psum(local(azimuth, polar, data), _AXIS)
 
 
 class GRTOperator(lx.AbstractLinearOperator):

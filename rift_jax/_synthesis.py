@@ -75,7 +75,7 @@ def synthesize(
     if rho.size == 0:
         raise ValueError("synthesize: `scene` has no non-zero voxels, so its signal is zero.")
     operator = grt_operator(radar, viewpoints, points)
-    raw = eqx.filter_jit(operator.mv)(jnp.asarray(rho, jnp.complex64))
+    raw = operator.mv(jnp.asarray(rho, jnp.complex64))  # jitted: compiles once per shape
     scale = float(jnp.max(jnp.abs(raw)))
     signal = raw / scale
     if snr_db is not None:

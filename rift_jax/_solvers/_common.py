@@ -18,7 +18,8 @@ import numpy as np
 from jax.custom_derivatives import linear_call
 from jaxtyping import Array, Complex, Float
 
-from .._operator import GRT, GRTOperator, replicated
+from .._operator import GRT, GRTOperator
+from .._sharding import replicated
 from .._validation import check_finite, check_positive_int
 from ._solution import History, Solution
 

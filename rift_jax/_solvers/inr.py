@@ -29,8 +29,9 @@ from tqdm.auto import tqdm
 
 from .._losses import LOSSES
 from .._models import MODELS, AbstractINR, Field
-from .._operator import GRT, GRTOperator, replicated
-from .._precision import to_float64
+from .._operator import GRT, GRTOperator
+from .._precision import exact_jit, to_float64
+from .._sharding import replicated
 from .._validation import check_positive, check_positive_int
 from ._common import as_complex, as_pair, check_problem, realified, zero_signal
 from ._solution import History, Solution, TrainingDiverged
@@ -336,7 +337,7 @@ def _decay_mask(params: Field) -> Field:
     return eqx.tree_at(lambda f: (f.log_gain, f.phase), mask, (False, False))
 
 
-@eqx.filter_jit
+@exact_jit
 def _energy_gain(field: Field, fn: GRT, coords, signal) -> Float[Array, ""]:
     """The g > 0 with ‖g·Aρ‖ = ‖y‖ for the field's ρ. (Not the least-squares gain: data
     that no ρ on this grid explains, such as the paper's two-grid protocol, make that gain
@@ -344,7 +345,7 @@ def _energy_gain(field: Field, fn: GRT, coords, signal) -> Float[Array, ""]:
     return jnp.linalg.norm(signal) / jnp.linalg.norm(fn(field.render(coords)))
 
 
-@eqx.filter_jit
+@exact_jit
 def _step(params, opt_state, static, optimizer, loss_fn, fn: GRT, coords, signal, index):
     """One optimizer step on the viewpoints ``index``: (params, state, loss, all gradients
     finite, ‖y_b − A_b ρ‖²)."""

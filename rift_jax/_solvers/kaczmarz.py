@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -10,8 +12,9 @@ import numpy as np
 from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Complex
 
-from .._operator import GRT, GRTOperator, device_mesh
-from .._precision import Float64Pair
+from .._operator import GRT, GRTOperator
+from .._precision import Float64Pair, exact_jit
+from .._sharding import device_mesh
 from ._common import check_problem, relative, zero_signal
 from ._solution import Solution, iterate
 
@@ -88,7 +91,7 @@ def kaczmarz(
     return Solution(x[:n_points], history, stopped, {"relaxation": relaxation})
 
 
-@eqx.filter_jit
+@exact_jit
 def _sweep(fn: GRT, points, mask, x, signal, order, lam):
     """One sweep, ``-> (ρ, Σ_b ‖r_b‖²)``, with the voxels (points, mask, ρ) split over the
     devices. Module-level and jitted on its arguments, so repeated runs of one problem size
@@ -98,13 +101,14 @@ def _sweep(fn: GRT, points, mask, x, signal, order, lam):
     def body(points, mask, x, signal, order, lam):
         local = eqx.tree_at(lambda f: f.points, fn, points)
         total = (lambda v: jax.lax.psum(v, _AXIS)) if n_dev > 1 else (lambda v: v)
+        view = functools.partial(local.view, split_voxels=False)  # already split here
 
         def block(k, carry):
             x, squares = carry
             i = order[k]
-            r = signal[i] - total(local.view(x, i))
-            g = jnp.where(mask, local.view_adjoint(r, i), 0)
-            q = total(local.view(g, i))
+            r = signal[i] - total(view(x, i))
+            g = jnp.where(mask, local.view_adjoint(r, i, split_voxels=False), 0)
+            q = total(view(g, i))
             gg = total(jnp.vdot(g, g).real)
             qq = jnp.vdot(q, q).real
             alpha = jnp.where(qq > 0, gg / jnp.where(qq > 0, qq, 1), 0)

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax.numpy as jnp
 import lineax as lx
 from jaxtyping import Array, Complex
 
 from .._operator import GRTOperator
+from .._precision import exact_jit
 from .._validation import check_positive_int
 from ._common import check_problem, relative, zero_signal
 from ._solution import Solution, iterate
@@ -62,7 +62,7 @@ def lsmr(
     return Solution(x, history, stopped, {"check_every": steps})
 
 
-@eqx.filter_jit
+@exact_jit
 def _segment(operator: GRTOperator, signal, x, steps: int):
     """``steps`` LSMR steps from ``x``: (new x, ‖y − Ax‖). Module-level, so repeated runs of
     one problem size compile once."""

@@ -15,6 +15,7 @@ import optimistix as optx
 from jaxtyping import Array, Complex
 
 from .._operator import GRTOperator
+from .._precision import exact_jit
 from .._validation import check_positive_int
 from ._common import as_complex, as_pair, check_problem, realified, relative, zero_signal
 from ._solution import Solution, iterate
@@ -57,12 +58,26 @@ def gauss_newton(
     check_positive_int(f"{where}: `inner`", inner)
     if (solution := zero_signal(where, signal, x)) is not None:
         return solution
+    solver, residual, y, state = _problem(operator.fn, signal, x, inner, damped)
+    norm = jnp.linalg.norm(signal)
+
+    def step(carry):
+        y, state, r = _step(solver, residual, *carry)
+        return (y, state), relative(r, norm)
+
+    (y, state), history, stopped = iterate(
+        step, step((y, state))[0], iterations=iterations, tol=tol, progress=progress, desc=where
+    )
+    return Solution(as_complex(y), history, stopped, {"inner": inner, "damped": damped})
+
+
+def _problem(fn, signal, x, inner: int, damped: bool):
+    """(solver, residual function, start as a real pair, solver state) for `gauss_newton`."""
     linear_solver = lx.LSMR(rtol=0.0, atol=0.0, max_steps=inner)  # no tolerance: `inner` steps
     kind = optx.LevenbergMarquardt if damped else optx.GaussNewton
     solver = kind(rtol=0.0, atol=0.0, linear_solver=linear_solver)
-    apply = realified(operator.fn)
+    apply = realified(fn)
     target = as_pair(signal)
-    norm = jnp.linalg.norm(signal)
 
     # The residual closes over the data rather than taking optimistix's `args`: optimistix
     # traces `args` (eval_shape) into the linearised residual it keeps in its state, and
@@ -75,18 +90,12 @@ def gauss_newton(
     y = as_pair(x)
     f_struct = eqx.filter_eval_shape(lambda: residual(y, None)[0])
     state = solver.init(residual, y, None, {}, f_struct, None, frozenset())
+    return solver, residual, y, state
 
-    @eqx.filter_jit
-    def solver_step(y, state):
-        y, state, _ = solver.step(residual, y, None, {}, state, frozenset())
-        r = residual(y, None)[0]
-        return y, state, relative(jnp.sqrt(jnp.sum(r[0] ** 2) + jnp.sum(r[1] ** 2)), norm)
 
-    def step(carry):
-        y, state, rel = solver_step(*carry)
-        return (y, state), rel
-
-    (y, state), history, stopped = iterate(
-        step, step((y, state))[0], iterations=iterations, tol=tol, progress=progress, desc=where
-    )
-    return Solution(as_complex(y), history, stopped, {"inner": inner, "damped": damped})
+@exact_jit
+def _step(solver, residual, y, state):
+    """One optimistix step: (y, state, ‖Aρ − y‖ at the new ρ)."""
+    y, state, _ = solver.step(residual, y, None, {}, state, frozenset())
+    r = residual(y, None)[0]
+    return y, state, jnp.sqrt(jnp.sum(r[0] ** 2) + jnp.sum(r[1] ** 2))

@@ -9,12 +9,12 @@ from __future__ import annotations
 import functools
 import warnings
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Complex
 
 from .._operator import GRTOperator
+from .._precision import exact_jit
 from .._validation import check_positive_int
 from ._common import as_complex, as_pair, check_problem, relative, zero_signal
 from ._solution import Solution, iterate
@@ -112,17 +112,17 @@ def _value_and_grad(pair, fn, signal):
     return (value, jnp.linalg.norm(r)), as_pair(fn.adjoint(r))
 
 
-@eqx.filter_jit
+@exact_jit
 def _init(solver, pair, lam, fn, signal):
     return solver.init_state(pair, lam, fn, signal)
 
 
-@eqx.filter_jit
+@exact_jit
 def _update(solver, pair, state, lam, fn, signal):
     return solver.update(pair, state, lam, fn, signal)
 
 
-@eqx.filter_jit
+@exact_jit
 def _max_backprojection(fn, signal):
     return jnp.max(jnp.abs(fn.adjoint(signal)))
 
@@ -148,7 +148,7 @@ def _power_norm(fn, iterations: int, seed: int) -> float:
     return float(_power(fn, jax.lax.complex(re, im), iterations))
 
 
-@eqx.filter_jit
+@exact_jit
 def _power(fn, v, iterations: int):
     def body(_, v):
         w = fn.adjoint(fn(v))

@@ -1,0 +1,120 @@
+"""Spreading GRT work over devices: viewpoints, or one view's voxels, one share per device.
+
+On CPU, rift_jax starts JAX with one host device per core (`rift_jax/__init__.py`), because
+XLA runs one small computation on about one core; on a GPU machine the devices are the GPUs;
+after `jax.distributed.initialize` they are every process's devices. Both splits use
+`jax.shard_map` on a one-axis mesh over `jax.devices()`:
+
+- **over viewpoints** (`over_views`): independent views, one share per device; outputs are
+  concatenated, or summed (a backprojection) with one `psum`;
+- **over voxels** (`over_voxels`): one view's voxels split between the devices. A forward's
+  partial signals are added with one `psum` of n_freq·n_tx·n_rx numbers; an adjoint's
+  per-voxel outputs are concatenated. This is what a single view (a plain `grt.forward`
+  call, a Kaczmarz block) and batches of fewer views than devices use.
+
+Padding (a view or voxel count that the devices do not divide) repeats the last point or
+angle with zero data, and is sliced off or contributes nothing.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+from jax.sharding import AxisType
+from jax.sharding import PartitionSpec as P
+
+from ._precision import leading
+
+VIEWS = "views"
+VOXELS = "voxels"
+
+
+def device_mesh(axis: str) -> jax.sharding.Mesh:
+    """A one-axis mesh over every device (one per CPU core on CPU, see `rift_jax/__init__`)."""
+    devices = jax.devices()
+    return jax.make_mesh((len(devices),), (axis,), devices=devices, axis_types=(AxisType.Auto,))
+
+
+def replicated(tree):
+    """``tree``'s arrays copied to every device.
+
+    Pass the inputs of a jitted *loop* around the operator (lineax, optimistix, jaxopt, a
+    `fori_loop`) through this: XLA does not partition a jit whose inputs all sit on one
+    device, and a `shard_map` nested in its loop then fails to compile on CPU ("No
+    registered implementation for ... GlobalToLocalShape").
+    """
+    if jax.device_count() == 1:
+        return tree
+    return jax.device_put(tree, jax.sharding.NamedSharding(device_mesh("replicated"), P()))
+
+
+def _pad(tree, pad: int, mode: str):
+    def one(x):
+        return jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1), mode=mode)
+
+    return jax.tree.map(one, tree)
+
+
+def over_views(local, azimuth, polar, data, *, reduce: bool):
+    """Run ``local(azimuth, polar, data)`` on shards of the viewpoints, one per device.
+
+    ``reduce=False``: ``data`` is replicated and per-view outputs are concatenated (padded
+    views included; the caller slices them off). ``reduce=True``: ``data`` is per-view
+    (sharded like the angles, zero for padding) and the per-device sums are added together.
+    Fewer views than devices run on one device: the caller's kernel then splits voxels.
+    """
+    if not split_views(leading(azimuth)):
+        return local(azimuth, polar, data)
+    pad = -leading(azimuth) % jax.device_count()
+    azimuth, polar = _pad((azimuth, polar), pad, "edge")
+    if reduce:
+        data = _pad(data, pad, "constant")
+        body = functools.partial(_summed, local, VIEWS)
+        specs, out_spec = (P(VIEWS), P(VIEWS), P(VIEWS)), P()
+    else:
+        body = local
+        specs, out_spec = (P(VIEWS), P(VIEWS), P()), P(VIEWS)
+    mesh = device_mesh(VIEWS)
+    return jax.shard_map(body, mesh=mesh, in_specs=specs, out_specs=out_spec)(azimuth, polar, data)
+
+
+def split_views(n_views: int) -> bool:
+    """Whether ``n_views`` viewpoints are split over the devices: when there are several
+    devices and at least one view for each."""
+    return jax.device_count() > 1 and n_views >= jax.device_count()
+
+
+def split_voxels(n_points: int, chunk: int) -> bool:
+    """Whether one view's ``n_points`` voxels are worth splitting over the devices: each
+    device gets at least one whole scan chunk (below that, the `psum` and the dispatch cost
+    more than the arithmetic saved)."""
+    return jax.device_count() > 1 and n_points >= jax.device_count() * chunk
+
+
+def over_voxels(local, points, voxel_data, shared, *, reduce: bool):
+    """Run ``local(points, voxel_data, shared)`` on shards of the voxels, one per device.
+
+    ``points`` and ``voxel_data`` (ρ, or None) are split along their leading axis;
+    ``shared`` (antennas, frequencies, a signal) is replicated. ``reduce=True``: the
+    per-device outputs (partial signals) are summed; ``reduce=False``: they are per-voxel and
+    concatenated, padding sliced off.
+    """
+    n_dev, n = jax.device_count(), leading(points)
+    pad = -n % n_dev
+    points = _pad(points, pad, "edge")
+    voxel_data = _pad(voxel_data, pad, "constant")  # padded voxels carry ρ = 0
+    body = functools.partial(_summed, local, VOXELS) if reduce else local
+    out_spec = P() if reduce else P(VOXELS)
+    out = jax.shard_map(
+        body,
+        mesh=device_mesh(VOXELS),
+        in_specs=(P(VOXELS), P(VOXELS), P()),
+        out_specs=out_spec,
+    )(points, voxel_data, shared)
+    return out if reduce else out[:n]
+
+
+def _summed(local, axis, *args):
+    return jax.lax.psum(local(*args), axis)

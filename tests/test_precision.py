@@ -1,0 +1,193 @@
+"""Every float32 matrix product asks for full precision, read from the jaxprs.
+
+On NVIDIA GPUs XLA's default float32 product is TensorFloat-32 (10 mantissa bits): it put the
+GRT at 2.7e-4 relative error on an H100 and failed 20 tests there. A CPU computes float32
+products exactly whatever they request, so no CPU test of the numbers can catch a product
+that forgot to ask: these tests read the request (`precision` of each `dot_general`) from the
+traced programs, down into scan, cond, checkpoint, shard_map, jit and linear_call bodies.
+"""
+
+import importlib
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import random_complex
+from jax.extend.core import ClosedJaxpr, Jaxpr
+
+import rift_jax as rj
+from rift_jax import grt, solvers
+
+# the package re-exports the functions `kaczmarz` etc. under the modules' names
+inr, kaczmarz, linear, nonlinear, sparse = (
+    importlib.import_module(f"rift_jax._solvers.{name}")
+    for name in ("inr", "kaczmarz", "linear", "nonlinear", "sparse")
+)
+
+HIGHEST = (jax.lax.Precision.HIGHEST, jax.lax.Precision.HIGHEST)
+
+
+def _subjaxprs(value):
+    if isinstance(value, ClosedJaxpr):
+        yield value.jaxpr
+    elif isinstance(value, Jaxpr):
+        yield value
+    elif isinstance(value, tuple | list):
+        for item in value:
+            yield from _subjaxprs(item)
+
+
+def products(jaxpr) -> list:
+    """Every `dot_general` equation of ``jaxpr`` (closed or not) and of all its bodies."""
+    if isinstance(jaxpr, ClosedJaxpr):
+        jaxpr = jaxpr.jaxpr
+    found = []
+    for eqn in jaxpr.eqns:
+        if eqn.primitive.name == "dot_general":
+            found.append(eqn)
+        for value in eqn.params.values():
+            for sub in _subjaxprs(value):
+                found.extend(products(sub))
+    return found
+
+
+def inexact_products_below_highest(jaxpr) -> list:
+    return [
+        eqn
+        for eqn in products(jaxpr)
+        if jnp.issubdtype(eqn.invars[0].aval.dtype, jnp.inexact)
+        and eqn.params["precision"] != HIGHEST
+    ]
+
+
+def assert_exact(jaxpr, what: str, at_least: int = 1):
+    found = products(jaxpr)
+    assert len(found) >= at_least, f"{what}: expected matrix products, found {len(found)}"
+    bad = inexact_products_below_highest(jaxpr)
+    assert not bad, f"{what}: {len(bad)} of {len(found)} products lack HIGHEST: {bad[:2]}"
+
+
+def test_the_reader_finds_products_inside_scan_cond_and_checkpoint():
+    """The check itself can fail: default-precision products hidden in each kind of body."""
+    a = jnp.ones((4, 4), jnp.float32)
+
+    def fn(x, precision):
+        def body(carry, _):
+            return carry @ a if precision is None else jnp.matmul(
+                carry, a, precision=precision
+            ), None
+
+        x = jax.lax.scan(body, x, None, length=2)[0]
+        x = jax.lax.cond(x[0, 0] > 0, lambda y: jnp.dot(y, a, precision=precision), jnp.sin, x)
+        return jax.checkpoint(lambda y: jnp.einsum("ij,jk->ik", y, a, precision=precision))(x)
+
+    loose = jax.make_jaxpr(lambda x: fn(x, None))(a)
+    assert len(products(loose)) == 3 and len(inexact_products_below_highest(loose)) == 3
+    exact = jax.make_jaxpr(lambda x: fn(x, jax.lax.Precision.HIGHEST))(a)
+    assert_exact(exact, "hand-made", at_least=3)
+    assert {"scan", "cond", "remat2"} <= {eqn.primitive.name for eqn in loose.jaxpr.eqns}
+
+
+@pytest.fixture(scope="module")
+def problem():
+    radar = rj.Radar(n_frequencies=6, n_tx=3, n_rx=4)
+    viewpoints = rj.Viewpoints.grid(3, 2, polar_range=(0.4, 1.2))
+    points = rj.grid_points(1.0, 0.5)
+    return radar, viewpoints, points, rj.grt_operator(radar, viewpoints, points)
+
+
+@pytest.mark.parametrize("near_field", [True, False])
+@pytest.mark.parametrize("uniform", [True, False])
+def test_grt_kernels(problem, near_field, uniform):
+    radar, _, points, _ = problem
+    tx, rx = rj.antenna_positions(radar, 0.7, 1.1)
+    freqs = (
+        radar.frequencies if uniform else np.sort(np.random.default_rng(0).uniform(95e9, 1e11, 5))
+    )
+    rho = jnp.ones(len(points), jnp.complex64)
+
+    def fwd(r):
+        return grt.forward(points, r, tx, rx, freqs, near_field=near_field, chunk_size=16)
+
+    signal = fwd(rho)
+    assert_exact(jax.make_jaxpr(fwd)(rho), "grt.forward")
+    adjoint = jax.make_jaxpr(
+        lambda s: grt.adjoint(points, s, tx, rx, freqs, near_field=near_field, chunk_size=16)
+    )(signal)
+    assert_exact(adjoint, "grt.adjoint")
+    # JAX's own transpose of the forward kernel (reverse mode through `forward`)
+    gradient = jax.make_jaxpr(jax.grad(lambda r: jnp.sum(jnp.abs(fwd(r)) ** 2), holomorphic=False))
+    assert_exact(gradient(rho.real.astype(jnp.complex64)), "grad of grt.forward")
+
+
+def test_operator_products(problem):
+    *_, op = problem
+    rho = jnp.asarray(random_complex(np.random.default_rng(0), op.fn.n_points))
+    signal = op.mv(rho)
+    for what, fn, arg in [
+        ("op.mv", op.mv, rho),
+        ("op.transpose().mv", op.transpose().mv, signal),
+        ("fn.adjoint", op.fn.adjoint, signal),
+        ("fn.view", lambda r: op.fn.view(r, 1), rho),
+        ("fn.view_adjoint", lambda s: op.fn.view_adjoint(s, 1), signal[1]),
+        ("grad through op.mv", jax.grad(lambda r: jnp.sum(jnp.abs(op.mv(r)) ** 2)), rho),
+    ]:
+        assert_exact(eqx.filter_make_jaxpr(fn)(arg)[0], what)
+
+
+STEPS = [
+    (kaczmarz, "_sweep", "kaczmarz", {"iterations": 1}),
+    (linear, "_segment", "lsmr", {"iterations": 2, "check_every": 2}),
+    (nonlinear, "_step", "gauss-newton", {"iterations": 1, "inner": 2}),
+    (sparse, "_update", "fista", {"iterations": 1, "power_iterations": 1}),
+    (sparse, "_power", "fista", {"iterations": 1, "power_iterations": 1}),
+    (inr, "_step", "rift-n", {"epochs": 1}),
+    (inr, "_step", "rift-s", {"epochs": 1}),
+    (inr, "_energy_gain", "rift-n", {"epochs": 1}),
+]
+
+
+def lowered_products(text: str) -> list[str]:
+    return [line.strip() for line in text.splitlines() if "stablehlo.dot_general" in line]
+
+
+@pytest.mark.parametrize(("module", "name", "method", "options"), STEPS)
+def test_solver_and_training_steps(problem, monkeypatch, module, name, method, options):
+    """Each solver's jitted step, lowered with the arguments of a real run (recorded on the
+    way). Read from StableHLO, not the jaxpr: lineax expands its `linear_solve` (LSMR's
+    inner products and norms) only when lowering."""
+    *_, op = problem
+    step = getattr(module, name)
+    lowered = []
+
+    def recording(*args, **kwargs):
+        if not lowered:
+            lowered.append(step.lower(*args, **kwargs).as_text())
+        return step(*args, **kwargs)
+
+    monkeypatch.setattr(module, name, recording)
+    signal = op.mv(jnp.ones(op.fn.n_points, jnp.complex64))
+    if method.startswith("rift"):
+        solvers.rift(op, signal, model=method, progress=False, **options)
+    else:
+        least_squares = {
+            "kaczmarz": solvers.kaczmarz,
+            "lsmr": solvers.lsmr,
+            "gauss-newton": solvers.gauss_newton,
+            "fista": solvers.fista,
+        }
+        least_squares[method](op, signal, progress=False, tol=0.0, **options)
+    assert lowered, f"{method} never called {module.__name__}.{name}"
+    found = lowered_products(lowered[0])
+    assert found, f"{method}: {name} has no matrix products"
+    bad = [line for line in found if "precision = [HIGHEST, HIGHEST]" not in line]
+    assert not bad, f"{method}: {name}: {len(bad)} of {len(found)} products: {bad[:2]}"
+
+
+def test_the_lowered_reader_can_fail():
+    """A library-style product lowered outside the setting shows up as not HIGHEST."""
+    a = jnp.ones((3, 3))
+    text = jax.jit(lambda x: jnp.vdot(x[0], x[1])).lower(a).as_text()
+    assert lowered_products(text) and "HIGHEST" not in lowered_products(text)[0]
