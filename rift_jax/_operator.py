@@ -68,10 +68,12 @@ class GRT(eqx.Module):
             tx, rx = antenna_positions(self.radar, to_float64(azimuth), to_float64(polar))
         return self.points, tx, rx, self.radar.frequencies
 
-    def _angles(self, index):
+    def _index(self, index) -> Array:
+        """``index`` checked (when concrete) and as an array, so that every view shares one
+        compilation."""
         if is_concrete(index) and not -self.n_views <= int(index) < self.n_views:
             raise ValueError(f"GRT: view `index` {index} out of range for {self.n_views} views.")
-        return jax.tree.map(lambda a: a[index], (self.azimuth, self.polar))
+        return jnp.asarray(index)
 
     def subset(self, index: Int[Array, " k"]) -> GRT:
         """The GRT of viewpoints ``index`` only (an integer array, may be traced): a batch of
@@ -86,16 +88,14 @@ class GRT(eqx.Module):
         Its voxels are split over the devices (``split_voxels=False``: not, e.g. inside a
         `shard_map` of your own over the voxels, as block Kaczmarz does)."""
         rho = jnp.asarray(rho, jnp.complex64)
-        angles = self._angles(index)
-        return self._kernel(_grt.forward_view, rho, *angles, split=split_voxels)
+        return _row(self, _grt.forward_view, rho, self._index(index), split_voxels)
 
     def view_adjoint(
         self, signal: Complex[Array, "f m n"], index, *, split_voxels: bool = True
     ) -> Complex[Array, " n_points"]:
         """Backprojection of one viewpoint's signal: the adjoint of `view`."""
         signal = jnp.asarray(signal, jnp.complex64)
-        angles = self._angles(index)
-        return self._kernel(_grt.adjoint_view, signal, *angles, split=split_voxels)
+        return _row(self, _grt.adjoint_view, signal, self._index(index), split_voxels)
 
     @eqx.filter_jit
     def __call__(self, rho: Complex[Array, " n_points"]) -> Complex[Array, "v f m n"]:
@@ -149,6 +149,13 @@ class GRT(eqx.Module):
             chunk=self.chunk_size,
             split=split,
         )
+
+
+@eqx.filter_jit
+def _row(fn: GRT, kernel, data, index, split: bool):
+    """One row block (``kernel`` is `forward_view` or `adjoint_view`), jitted once per shape."""
+    angles = jax.tree.map(lambda a: a[index], (fn.azimuth, fn.polar))
+    return fn._kernel(kernel, data, *angles, split=split)
 
 
 class GRTOperator(lx.AbstractLinearOperator):

@@ -1,0 +1,130 @@
+"""Plain calls compile once, and 1, 2 or 4 devices give the same answers.
+
+The device count is fixed when JAX starts, so each count runs in a fresh process
+(``RIFT_JAX_CPU_DEVICES``), which writes its results for this process to compare.
+"""
+
+import logging
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import numpy as np
+import pytest
+
+import rift_jax as rj
+from rift_jax import grt
+
+# Every sharded path: views split (9 views ≥ devices), voxels split (one view, 729 voxels
+# ≥ devices × chunk 64), padding of both (9 views and 729 voxels on 2 and 4 devices), and
+# every solver's and RIFT's jitted loop over them.
+_WORKLOAD = textwrap.dedent(
+    """
+    import sys
+    import jax, numpy as np
+    import rift_jax as rj
+    from rift_jax import grt, solvers
+
+    radar = rj.Radar(n_frequencies=8, n_tx=4, n_rx=4)
+    viewpoints = rj.Viewpoints.grid(3, 3, polar_range=(0.4, 1.2))
+    scene = rj.scenes.cube(0.25, extent=1.0, edge=1.0)
+    points = scene.points()
+    op = rj.grt_operator(radar, viewpoints, points, chunk_size=64)
+    rho = scene.reflectivity.ravel().astype(np.complex64)
+    tx, rx = rj.antenna_positions(radar, 0.7, 1.1)
+    one = grt.forward(points, rho, tx, rx, radar.frequencies, chunk_size=64)
+    signal = rj.synthesize(scene, viewpoints, radar).signal
+    out = {
+        "devices": jax.device_count(),
+        "forward_one_view": one,
+        "adjoint_one_view": grt.adjoint(points, one, tx, rx, radar.frequencies, chunk_size=64),
+        "view": op.fn.view(rho, 4),
+        "view_adjoint": op.fn.view_adjoint(one, 4),
+        "operator": op.mv(rho),
+        "operator_adjoint": op.fn.adjoint(signal),
+        "synthesize": signal,
+        "kaczmarz": solvers.kaczmarz(op, signal, iterations=2, progress=False).rho,
+        "lsmr": solvers.lsmr(op, signal, iterations=4, check_every=2, progress=False).rho,
+        "gauss_newton": solvers.gauss_newton(
+            op, signal, iterations=1, inner=3, tol=0.0, progress=False
+        ).rho,
+        "fista": solvers.fista(op, signal, iterations=3, power_iterations=3, progress=False).rho,
+        "rift": solvers.rift(
+            op, signal, model="rift-n", epochs=3, batch_views=3, width=16, depth=2, progress=False
+        ).rho,
+    }
+    np.savez(sys.argv[1], **{k: np.asarray(v) for k, v in out.items()})
+    """
+)
+
+
+@pytest.fixture(scope="module")
+def by_device_count(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("devices")
+    script = folder / "workload.py"
+    script.write_text(_WORKLOAD)
+    runs = {}
+    for n in (1, 2, 4):  # side by side: most of each run is compilation on one core
+        env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+        env["RIFT_JAX_CPU_DEVICES"] = str(n)
+        runs[n] = subprocess.Popen([sys.executable, str(script), str(folder / f"{n}.npz")], env=env)
+    for n, run in runs.items():
+        assert run.wait(timeout=600) == 0, f"the workload on {n} devices failed"
+    return {n: dict(np.load(folder / f"{n}.npz")) for n in runs}
+
+
+def test_results_do_not_depend_on_the_device_count(by_device_count):
+    """Same numbers on 1, 2 and 4 devices: exactly where each view runs whole on one device,
+    to float32 rounding where partial sums over voxels or views are added in another order
+    (and through a few solver iterations)."""
+    base = by_device_count[1]
+    for n in (2, 4):
+        other = by_device_count[n]
+        assert int(other["devices"]) == n
+        for name, expected in base.items():
+            if name == "devices":
+                continue
+            got = other[name]
+            assert got.shape == expected.shape, name
+            error = np.linalg.norm(got - expected) / np.linalg.norm(expected)
+            assert error < 2e-5, f"{name}: {n} devices differ from 1 by {error:.2e}"
+        np.testing.assert_array_equal(other["operator"], base["operator"])
+
+
+def _compilations(caplog, call) -> list[str]:
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="jax"), jax.log_compiles():
+        jax.block_until_ready(call())
+    return [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling")]
+
+
+def test_plain_calls_compile_once(caplog):
+    """A second plain call with new values of the same shapes compiles nothing (before the
+    kernels were jitted, every call traced and compiled the whole scan again: 0.8 s)."""
+    radar = rj.Radar(n_frequencies=6, n_tx=3, n_rx=4)
+    points = rj.grid_points(1.0, 0.25)
+    rho = np.ones(len(points), np.complex64)
+    viewpoints = rj.Viewpoints.grid(3, 2)
+    op = rj.grt_operator(radar, viewpoints, points)
+    scene = rj.scenes.sphere(0.25, extent=1.0, radius=0.5)
+
+    def calls(angle, scale):
+        tx, rx = rj.antenna_positions(radar, angle, 1.1)
+        signal = grt.forward(points, scale * rho, tx, rx, radar.frequencies)
+        return {
+            "grt.forward": lambda: signal,
+            "grt.adjoint": lambda: grt.adjoint(points, signal, tx, rx, radar.frequencies),
+            "operator": lambda: op.mv(scale * rho),
+            "operator adjoint": lambda: op.transpose().mv(op.mv(scale * rho)),
+            "view": lambda: op.fn.view(scale * rho, 1),
+            "synthesize": lambda: rj.synthesize(scene, viewpoints, radar).signal,
+        }
+
+    for call in calls(0.3, 1.0).values():  # first calls compile
+        jax.block_until_ready(call())
+    smaller = rj.grt_operator(radar, viewpoints, points[:-1])  # the check can see one
+    assert _compilations(caplog, lambda: smaller.mv(rho[:-1]))
+    for name, call in calls(0.9, 2.0).items():
+        assert _compilations(caplog, call) == [], f"{name} compiled again"
