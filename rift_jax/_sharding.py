@@ -50,6 +50,17 @@ def replicated(tree):
     return jax.device_put(tree, jax.sharding.NamedSharding(device_mesh("replicated"), P()))
 
 
+def gathered(x):
+    """``x`` whole in this process. After `jax.distributed.initialize`, an operator's output
+    is split over every process's devices and no process holds all of it: it is gathered
+    from all of them (`process_allgather`). Anything else is returned as it is."""
+    if isinstance(x, jax.Array) and not x.is_fully_addressable:
+        from jax.experimental import multihost_utils
+
+        return jnp.asarray(multihost_utils.process_allgather(x, tiled=True))
+    return x
+
+
 def _pad(tree, pad: int, mode: str):
     def one(x):
         return jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1), mode=mode)

@@ -11,6 +11,7 @@ from jaxtyping import Array, Complex
 from ._geometry import Radar, Viewpoints
 from ._operator import grt_operator
 from ._scenes import Scene
+from ._sharding import gathered
 
 
 class RadarData(eqx.Module):
@@ -75,7 +76,8 @@ def synthesize(
     if rho.size == 0:
         raise ValueError("synthesize: `scene` has no non-zero voxels, so its signal is zero.")
     operator = grt_operator(radar, viewpoints, points)
-    raw = operator.mv(jnp.asarray(rho, jnp.complex64))  # jitted: compiles once per shape
+    # jitted (compiles once per shape); gathered here when the views span several processes
+    raw = gathered(operator.mv(jnp.asarray(rho, jnp.complex64)))
     scale = float(jnp.max(jnp.abs(raw)))
     signal = raw / scale
     if snr_db is not None:

@@ -19,7 +19,7 @@ from jax.custom_derivatives import linear_call
 from jaxtyping import Array, Complex, Float
 
 from .._operator import GRT, GRTOperator
-from .._sharding import replicated
+from .._sharding import gathered, replicated
 from .._validation import check_finite, check_positive_int
 from ._solution import History, Solution
 
@@ -56,7 +56,7 @@ def check_problem(where: str, operator, signal, x0, iterations) -> tuple[Array, 
         )
     check_positive_int(f"{where}: `iterations`", iterations)
     expected = operator.out_structure().shape
-    signal = np.asarray(signal)
+    signal = np.asarray(gathered(signal))
     if signal.shape != expected:
         raise ValueError(
             f"{where}: `signal` must have shape {expected} (n_views, n_freq, n_tx, n_rx) for "
