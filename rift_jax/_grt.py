@@ -51,7 +51,7 @@ from jaxtyping import Array, Complex, Float
 
 from ._geometry import C0
 from ._precision import Float64Pair, as_geometry, leading, to_float64
-from ._sharding import over_voxels, split_voxels
+from ._sharding import over_voxels, pinned, split_voxels
 from ._validation import check_finite, check_positive_int, is_concrete
 
 _TWO_PI = 2.0 * math.pi
@@ -156,11 +156,10 @@ def _materialise(fn, flag, *args):
     Accelerators recompute cheaply and pay for conditionals: there, ``fn`` runs inline."""
     if jax.default_backend() != "cpu":
         return fn(*args)
-    shapes = jax.eval_shape(fn, *args)
-    inputs = jax.tree.leaves(args)
 
-    def zeros(*_):  # the branch never taken
-        return jax.tree.map(lambda x: _zeros(x.shape, x.dtype, *inputs), shapes)
+    def zeros(*args):  # the branch never taken. Zeros shaped from fn's own outputs carry
+        # exactly their shard_map types (varying or not); fn's work there is dead code.
+        return jax.tree.map(lambda y: _zeros(y.shape, y.dtype, y), fn(*args))
 
     return jax.lax.cond(flag, fn, zeros, *args)
 
@@ -320,14 +319,14 @@ def _adjoint_kernel(points, tx, rx, frequencies, signal, *, plan, near_field, ch
 
 def forward_view(points, tx, rx, frequencies, rho, *, plan, near_field, chunk, split=True):
     """`_forward_kernel` with the voxels split over the devices when that pays
-    (``split=False``: never, e.g. inside a `shard_map` of the caller's own)."""
+    (`rift_jax._sharding.split_voxels`; never with ``split=False``)."""
     chunk = chunk or default_chunk()
 
     def local(points, rho, shared):
         return _forward_kernel(points, *shared, rho, plan=plan, near_field=near_field, chunk=chunk)
 
     shared = (tx, rx, frequencies)
-    if not (split and split_voxels(leading(points), chunk)):
+    if not (split and split_voxels(leading(points), chunk, points, rho, shared)):
         return local(points, rho, shared)
     return over_voxels(local, points, rho, shared, reduce=True)
 
@@ -340,16 +339,17 @@ def adjoint_view(points, tx, rx, frequencies, signal, *, plan, near_field, chunk
         return _adjoint_kernel(points, *shared, plan=plan, near_field=near_field, chunk=chunk)
 
     shared = (tx, rx, frequencies, signal)
-    if not (split and split_voxels(leading(points), chunk)):
+    if not (split and split_voxels(leading(points), chunk, points, shared)):
         return local(points, None, shared)
     return over_voxels(local, points, None, shared, reduce=False)
 
 
 # The public entry points, compiled once per shape and configuration: without this, a plain
-# call traces and compiles the whole scan again every time (0.8 s against 0.07 s, measured).
-_STATIC = ("plan", "near_field", "chunk")
-_forward_jit = jax.jit(forward_view, static_argnames=_STATIC + ("split",))
-_adjoint_jit = jax.jit(adjoint_view, static_argnames=_STATIC + ("split",))
+# call traces and compiles the whole scan again every time (0.8 s against 0.04 s, measured).
+# `split` is decided outside the jit, where an input pinned to one device can still be seen.
+_STATIC = ("plan", "near_field", "chunk", "split")
+_forward_jit = jax.jit(forward_view, static_argnames=_STATIC)
+_adjoint_jit = jax.jit(adjoint_view, static_argnames=_STATIC)
 
 
 def _complex_dtype(x) -> np.dtype:
@@ -412,8 +412,17 @@ def forward(
         )
     check_finite(reflectivity, "`reflectivity`")
     reflectivity = reflectivity.astype(_complex_dtype(reflectivity))
+    split = not pinned((points, tx, rx, freqs, reflectivity))
     return _forward_jit(
-        points, tx, rx, freqs, reflectivity, plan=plan, near_field=near_field, chunk=chunk_size
+        points,
+        tx,
+        rx,
+        freqs,
+        reflectivity,
+        plan=plan,
+        near_field=near_field,
+        chunk=chunk_size,
+        split=split,
     )
 
 
@@ -439,6 +448,15 @@ def adjoint(
         )
     check_finite(signal, "`signal`")
     signal = signal.astype(_complex_dtype(signal))
+    split = not pinned((points, tx, rx, freqs, signal))
     return _adjoint_jit(
-        points, tx, rx, freqs, signal, plan=plan, near_field=near_field, chunk=chunk_size
+        points,
+        tx,
+        rx,
+        freqs,
+        signal,
+        plan=plan,
+        near_field=near_field,
+        chunk=chunk_size,
+        split=split,
     )

@@ -165,9 +165,11 @@ class Field(eqx.Module):
         re, im = self.model(xyz / self.extent)
         return self.gain * jax.lax.complex(re, im)
 
+    @eqx.filter_jit
     def render(self, points: Float[Array, "n 3"]) -> Complex[Array, " n"]:
         """ρ at each of ``points`` (metres), complex64. Evaluated in batches of 65,536 points,
-        so that fine grids do not hold every hidden activation at once."""
+        so that fine grids do not hold every hidden activation at once. Jitted: compiles
+        once per model and number of points."""
         points = jnp.asarray(points, jnp.float32)
         batch = min(points.shape[0], 2**16)
         return jax.lax.map(self, points, batch_size=batch).astype(jnp.complex64)

@@ -25,7 +25,7 @@ from jaxtyping import Array, Complex, Float, Int
 from . import _grt
 from ._geometry import Radar, Viewpoints, antenna_positions
 from ._precision import Float64Pair, leading, split, to_float64
-from ._sharding import over_views, split_views
+from ._sharding import over_views
 from ._validation import as_finite_array, check_positive_int, is_concrete
 
 
@@ -73,7 +73,7 @@ class GRT(eqx.Module):
         compilation."""
         if is_concrete(index) and not -self.n_views <= int(index) < self.n_views:
             raise ValueError(f"GRT: view `index` {index} out of range for {self.n_views} views.")
-        return jnp.asarray(index)
+        return jnp.asarray(index, jnp.int32)  # one dtype: a NumPy int64 must not recompile
 
     def subset(self, index: Int[Array, " k"]) -> GRT:
         """The GRT of viewpoints ``index`` only (an integer array, may be traced): a batch of
@@ -81,21 +81,16 @@ class GRT(eqx.Module):
         angles = jax.tree.map(lambda a: a[index], (self.azimuth, self.polar))
         return eqx.tree_at(lambda g: (g.azimuth, g.polar), self, angles)
 
-    def view(
-        self, rho: Complex[Array, " n_points"], index, *, split_voxels: bool = True
-    ) -> Complex[Array, "f m n"]:
+    def view(self, rho: Complex[Array, " n_points"], index) -> Complex[Array, "f m n"]:
         """The signal of viewpoint ``index`` (may be traced): one row block of the operator.
-        Its voxels are split over the devices (``split_voxels=False``: not, e.g. inside a
-        `shard_map` of your own over the voxels, as block Kaczmarz does)."""
+        Its voxels are split over the devices (not inside a `shard_map`)."""
         rho = jnp.asarray(rho, jnp.complex64)
-        return _row(self, _grt.forward_view, rho, self._index(index), split_voxels)
+        return _row(self, _grt.forward_view, rho, self._index(index))
 
-    def view_adjoint(
-        self, signal: Complex[Array, "f m n"], index, *, split_voxels: bool = True
-    ) -> Complex[Array, " n_points"]:
+    def view_adjoint(self, signal: Complex[Array, "f m n"], index) -> Complex[Array, " n_points"]:
         """Backprojection of one viewpoint's signal: the adjoint of `view`."""
         signal = jnp.asarray(signal, jnp.complex64)
-        return _row(self, _grt.adjoint_view, signal, self._index(index), split_voxels)
+        return _row(self, _grt.adjoint_view, signal, self._index(index))
 
     @eqx.filter_jit
     def __call__(self, rho: Complex[Array, " n_points"]) -> Complex[Array, "v f m n"]:
@@ -103,11 +98,10 @@ class GRT(eqx.Module):
         rho = jnp.asarray(rho, jnp.complex64)
         if rho.shape != (self.n_points,):
             raise ValueError(f"GRT: `rho` must have shape ({self.n_points},), got {rho.shape}.")
-        per_view = not split_views(self.n_views)  # else each view splits its voxels
 
         def local(azimuth, polar, rho):
             return jax.lax.map(
-                lambda ap: self._kernel(_grt.forward_view, rho, *ap, split=per_view),
+                lambda ap: self._kernel(_grt.forward_view, rho, *ap),
                 (azimuth, polar),
                 batch_size=_views_per_batch(),
             )
@@ -123,12 +117,11 @@ class GRT(eqx.Module):
             raise ValueError(
                 f"GRT.adjoint: `signal` must have shape {self.out_shape}, got {signal.shape}."
             )
-        per_view = not split_views(self.n_views)
 
         def local(azimuth, polar, signal):
             def step(acc, xs):
                 a, p, s = xs
-                return acc + self._kernel(_grt.adjoint_view, s, a, p, split=per_view), None
+                return acc + self._kernel(_grt.adjoint_view, s, a, p), None
 
             leaves = jax.tree.leaves((azimuth, polar))  # per-device inside shard_map
             zero = _grt._zeros((self.n_points,), signal.dtype, *leaves)
@@ -136,7 +129,9 @@ class GRT(eqx.Module):
 
         return over_views(local, self.azimuth, self.polar, signal, reduce=True)
 
-    def _kernel(self, kernel, data, azimuth, polar, *, split: bool):
+    def _kernel(self, kernel, data, azimuth, polar):
+        """``kernel`` (`forward_view` or `adjoint_view`: split over voxels where that
+        applies) for one viewpoint's angles."""
         points, tx, rx, freqs = self._geometry(azimuth, polar)
         return kernel(
             points,
@@ -147,15 +142,14 @@ class GRT(eqx.Module):
             plan=_grt.frequency_plan(freqs),
             near_field=self.radar.near_field,
             chunk=self.chunk_size,
-            split=split,
         )
 
 
 @eqx.filter_jit
-def _row(fn: GRT, kernel, data, index, split: bool):
+def _row(fn: GRT, kernel, data, index):
     """One row block (``kernel`` is `forward_view` or `adjoint_view`), jitted once per shape."""
     angles = jax.tree.map(lambda a: a[index], (fn.azimuth, fn.polar))
-    return fn._kernel(kernel, data, *angles, split=split)
+    return fn._kernel(kernel, data, *angles)
 
 
 class GRTOperator(lx.AbstractLinearOperator):

@@ -82,10 +82,7 @@ def exact_jit(fn):
     """``eqx.filter_jit(fn)``, traced *and lowered* under `exact_products`' setting. Lowering
     matters for libraries whose primitives are expanded only then (lineax's `linear_solve`,
     and so LSMR's inner products and norms): a setting active only while tracing misses
-    them. ``.lower(...)`` lowers the same way (the precision tests read its StableHLO);
-    ``.__wrapped__`` is ``fn`` itself, unjitted."""
-    jitted = eqx.filter_jit(fn)
-    call = exact_products(jitted)
-    call.lower = exact_products(jitted.lower)
+    them. ``.__wrapped__`` is ``fn`` itself, unjitted."""
+    call = exact_products(eqx.filter_jit(fn))
     call.__wrapped__ = fn
     return call

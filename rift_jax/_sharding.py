@@ -10,7 +10,11 @@ after `jax.distributed.initialize` they are every process's devices. Both splits
 - **over voxels** (`over_voxels`): one view's voxels split between the devices. A forward's
   partial signals are added with one `psum` of n_freq·n_tx·n_rx numbers; an adjoint's
   per-voxel outputs are concatenated. This is what a single view (a plain `grt.forward`
-  call, a Kaczmarz block) and batches of fewer views than devices use.
+  call, a row block) and batches of fewer views than devices use. Block Kaczmarz splits the
+  voxels once for a whole sweep, with the same axis and padding (`kaczmarz._sweep`).
+
+Nothing is split inside a `shard_map` (rift_jax's or the caller's): there, each call runs
+whole on its device.
 
 Padding (a view or voxel count that the devices do not divide) repeats the last point or
 angle with zero data, and is sliced off or contributes nothing.
@@ -61,7 +65,10 @@ def gathered(x):
     return x
 
 
-def _pad(tree, pad: int, mode: str):
+def pad_leading(tree, pad: int, mode: str):
+    """Every array of ``tree`` padded by ``pad`` entries along its leading axis (`jnp.pad`
+    ``mode``: "edge" repeats the last point or angle, "constant" adds zeros)."""
+
     def one(x):
         return jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1), mode=mode)
 
@@ -74,14 +81,14 @@ def over_views(local, azimuth, polar, data, *, reduce: bool):
     ``reduce=False``: ``data`` is replicated and per-view outputs are concatenated (padded
     views included; the caller slices them off). ``reduce=True``: ``data`` is per-view
     (sharded like the angles, zero for padding) and the per-device sums are added together.
-    Fewer views than devices run on one device: the caller's kernel then splits voxels.
+    Fewer views than devices run outside any `shard_map`: each view then splits its voxels.
     """
-    if not split_views(leading(azimuth)):
+    if not split_views(leading(azimuth), azimuth, polar, data):
         return local(azimuth, polar, data)
     pad = -leading(azimuth) % jax.device_count()
-    azimuth, polar = _pad((azimuth, polar), pad, "edge")
+    azimuth, polar = pad_leading((azimuth, polar), pad, "edge")
     if reduce:
-        data = _pad(data, pad, "constant")
+        data = pad_leading(data, pad, "constant")
         body = functools.partial(_summed, local, VIEWS)
         specs, out_spec = (P(VIEWS), P(VIEWS), P(VIEWS)), P()
     else:
@@ -91,17 +98,40 @@ def over_views(local, azimuth, polar, data, *, reduce: bool):
     return jax.shard_map(body, mesh=mesh, in_specs=specs, out_specs=out_spec)(azimuth, polar, data)
 
 
-def split_views(n_views: int) -> bool:
-    """Whether ``n_views`` viewpoints are split over the devices: when there are several
-    devices and at least one view for each."""
-    return jax.device_count() > 1 and n_views >= jax.device_count()
+def pinned(tree) -> bool:
+    """Whether any array of ``tree`` is committed to a single device (as after
+    ``jax.device_put(x, device)``): work on it must stay there. Only concrete arrays show
+    it; inside a `jit` their tracers do not, so the entry points ask before jitting."""
+    return any(
+        isinstance(x, jax.Array)
+        and not isinstance(x, jax.core.Tracer)
+        and x.committed
+        and len(x.sharding.device_set) == 1
+        for x in jax.tree.leaves(tree)
+    )
 
 
-def split_voxels(n_points: int, chunk: int) -> bool:
-    """Whether one view's ``n_points`` voxels are worth splitting over the devices: each
-    device gets at least one whole scan chunk (below that, the `psum` and the dispatch cost
-    more than the arithmetic saved)."""
-    return jax.device_count() > 1 and n_points >= jax.device_count() * chunk
+def _splittable(arrays) -> bool:
+    """Whether work may be split over the devices at all: there are several, this is not
+    already inside a `shard_map` (rift_jax's own view split, Kaczmarz's voxel split, or the
+    caller's), and no input is `pinned`."""
+    if jax.device_count() == 1 or jax.sharding.get_abstract_mesh().manual_axes:
+        return False
+    return not pinned(arrays)
+
+
+def split_views(n_views: int, *arrays) -> bool:
+    """Whether ``n_views`` viewpoints are split over the devices: when `_splittable` and
+    there is at least one view for each device. (A count the devices do not divide is padded
+    with repeats of the last view: n_dev + 1 views cost about as much as 2·n_dev.)"""
+    return _splittable(arrays) and n_views >= jax.device_count()
+
+
+def split_voxels(n_points: int, chunk: int, *arrays) -> bool:
+    """Whether one view's ``n_points`` voxels are split over the devices: when `_splittable`
+    and each device gets at least one whole scan chunk (below that, the `psum` and the
+    dispatch cost more than the arithmetic saved)."""
+    return _splittable(arrays) and n_points >= jax.device_count() * chunk
 
 
 def over_voxels(local, points, voxel_data, shared, *, reduce: bool):
@@ -114,8 +144,8 @@ def over_voxels(local, points, voxel_data, shared, *, reduce: bool):
     """
     n_dev, n = jax.device_count(), leading(points)
     pad = -n % n_dev
-    points = _pad(points, pad, "edge")
-    voxel_data = _pad(voxel_data, pad, "constant")  # padded voxels carry ρ = 0
+    points = pad_leading(points, pad, "edge")
+    voxel_data = pad_leading(voxel_data, pad, "constant")  # padded voxels carry ρ = 0
     body = functools.partial(_summed, local, VOXELS) if reduce else local
     out_spec = P() if reduce else P(VOXELS)
     out = jax.shard_map(

@@ -102,31 +102,40 @@ def _compilations(caplog, call) -> list[str]:
 
 def test_plain_calls_compile_once(caplog):
     """A second plain call with new values of the same shapes compiles nothing (before the
-    kernels were jitted, every call traced and compiled the whole scan again: 0.8 s)."""
+    kernels were jitted, every call traced and compiled the whole scan again: 0.8 s). The
+    solvers too, on a new signal. (Gauss-Newton is the exception: its step compiles once
+    per run, see `rift_jax._solvers.nonlinear`.)"""
     radar = rj.Radar(n_frequencies=6, n_tx=3, n_rx=4)
     points = rj.grid_points(1.0, 0.25)
     rho = np.ones(len(points), np.complex64)
     viewpoints = rj.Viewpoints.grid(3, 2)
     op = rj.grt_operator(radar, viewpoints, points)
     scene = rj.scenes.sphere(0.25, extent=1.0, radius=0.5)
+    quiet = {"progress": False}
 
-    def calls(angle, scale):
+    def calls(angle, scale, index):
         tx, rx = rj.antenna_positions(radar, angle, 1.1)
         signal = grt.forward(points, scale * rho, tx, rx, radar.frequencies)
+        data = op.mv(scale * rho)
         return {
             "grt.forward": lambda: signal,
             "grt.adjoint": lambda: grt.adjoint(points, signal, tx, rx, radar.frequencies),
             "operator": lambda: op.mv(scale * rho),
-            "operator adjoint": lambda: op.transpose().mv(op.mv(scale * rho)),
-            "view": lambda: op.fn.view(scale * rho, 1),
+            "operator adjoint": lambda: op.transpose().mv(data),
+            "view": lambda: op.fn.view(scale * rho, index),
+            "view_adjoint": lambda: op.fn.view_adjoint(data[0], index),
             "synthesize": lambda: rj.synthesize(scene, viewpoints, radar).signal,
+            "kaczmarz": lambda: rj.solvers.kaczmarz(op, data, iterations=1, **quiet).rho,
+            "lsmr": lambda: rj.solvers.lsmr(op, data, iterations=2, check_every=2, **quiet).rho,
+            "fista": lambda: rj.solvers.fista(op, data, iterations=1, **quiet).rho,
+            "rift": lambda: rj.solvers.rift(op, data, epochs=1, width=8, depth=1, **quiet).rho,
         }
 
-    for call in calls(0.3, 1.0).values():  # first calls compile
+    for call in calls(0.3, 1.0, 1).values():  # first calls compile
         jax.block_until_ready(call())
     smaller = rj.grt_operator(radar, viewpoints, points[:-1])  # the check can see one
     assert _compilations(caplog, lambda: smaller.mv(rho[:-1]))
-    for name, call in calls(0.9, 2.0).items():
+    for name, call in calls(0.9, 2.0, np.int64(4)).items():
         assert _compilations(caplog, call) == [], f"{name} compiled again"
 
 
@@ -159,3 +168,32 @@ def test_the_multihost_example_matches_one_process(tmp_path):
     error = np.linalg.norm(two["lsmr"] - one["lsmr"]) / np.linalg.norm(one["lsmr"])
     assert error < 1e-5
     assert np.all(np.isfinite(two["rift"])) and np.any(two["rift"] != 0)
+
+
+def test_kernels_inside_a_users_shard_map_and_on_pinned_inputs():
+    """The voxel split stays out of the way: inside a caller's `shard_map` each call runs
+    whole on its device, and an input pinned to one device runs there."""
+    from jax.sharding import AxisType
+    from jax.sharding import PartitionSpec as P
+
+    n = jax.device_count()
+    if n < 2:
+        pytest.skip("needs several devices (rift_jax makes one per CPU core)")
+    radar = rj.Radar(n_frequencies=6, n_tx=3, n_rx=4)
+    points = rj.grid_points(1.0, 0.25)  # 729 voxels: a plain call splits them
+    tx, rx = rj.antenna_positions(radar, 0.7, 1.1)
+    rhos = np.random.default_rng(0).normal(size=(n, len(points))).astype(np.complex64)
+    plain = np.stack([grt.forward(points, r, tx, rx, radar.frequencies) for r in rhos])
+
+    mesh = jax.make_mesh((n,), ("user",), axis_types=(AxisType.Auto,))
+    per_device = jax.shard_map(
+        lambda r: grt.forward(points, r[0], tx, rx, radar.frequencies)[None],
+        mesh=mesh,
+        in_specs=P("user"),
+        out_specs=P("user"),
+    )
+    np.testing.assert_allclose(per_device(rhos), plain, rtol=1e-5, atol=1e-6 * np.abs(plain).max())
+    pinned = jax.device_put(rhos[0], jax.devices()[1])
+    signal = grt.forward(points, pinned, tx, rx, radar.frequencies)
+    np.testing.assert_allclose(signal, plain[0], rtol=1e-5, atol=1e-6 * np.abs(plain).max())
+    assert signal.sharding.device_set == {jax.devices()[1]}

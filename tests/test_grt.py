@@ -198,3 +198,14 @@ def test_non_finite_points_under_jit_propagate_instead_of_vanishing():
     rho = jnp.ones(5, jnp.complex64)
     s = jax.jit(lambda p: grt.forward(p, rho, tx, rx, radar.frequencies))(points)
     assert np.isnan(np.asarray(s)).all()
+
+
+def test_the_benchmarks_baseline_computes_the_same_grt(rng):
+    """`benchmarks.grt.authors_forward` (the authors' per-frequency algorithm, the baseline of
+    the plain-call speed target) computes this GRT, to its float32 phase error (~1e-3)."""
+    from benchmarks.grt import authors_forward
+
+    radar, points, rho, tx, rx = setup(rng, 10.0, n_points=300)
+    theirs = authors_forward(points, rho, tx, rx, radar.frequencies, threads=2)
+    ours = grt.forward(points, rho, tx, rx, radar.frequencies)
+    assert 1e-5 < relative_error(theirs, ours) < 1e-2

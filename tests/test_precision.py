@@ -7,7 +7,7 @@ that forgot to ask: these tests read the request (`precision` of each `dot_gener
 traced programs, down into scan, cond, checkpoint, shard_map, jit and linear_call bodies.
 """
 
-import importlib
+import functools
 
 import equinox as eqx
 import jax
@@ -19,12 +19,6 @@ from jax.extend.core import ClosedJaxpr, Jaxpr
 
 import rift_jax as rj
 from rift_jax import grt, solvers
-
-# the package re-exports the functions `kaczmarz` etc. under the modules' names
-inr, kaczmarz, linear, nonlinear, sparse = (
-    importlib.import_module(f"rift_jax._solvers.{name}")
-    for name in ("inr", "kaczmarz", "linear", "nonlinear", "sparse")
-)
 
 HIGHEST = (jax.lax.Precision.HIGHEST, jax.lax.Precision.HIGHEST)
 
@@ -137,57 +131,74 @@ def test_operator_products(problem):
         assert_exact(eqx.filter_make_jaxpr(fn)(arg)[0], what)
 
 
-STEPS = [
-    (kaczmarz, "_sweep", "kaczmarz", {"iterations": 1}),
-    (linear, "_segment", "lsmr", {"iterations": 2, "check_every": 2}),
-    (nonlinear, "_step", "gauss-newton", {"iterations": 1, "inner": 2}),
-    (sparse, "_update", "fista", {"iterations": 1, "power_iterations": 1}),
-    (sparse, "_power", "fista", {"iterations": 1, "power_iterations": 1}),
-    (inr, "_step", "rift-n", {"epochs": 1}),
-    (inr, "_step", "rift-s", {"epochs": 1}),
-    (inr, "_energy_gain", "rift-n", {"epochs": 1}),
-]
+def test_field_render(problem):
+    """The INR's own layers, outside any solver step (final renderings, `evaluate`)."""
+    *_, points, _ = problem
+    for model in (
+        rj.RiftN(width=8, depth=2, key=jax.random.key(0)),
+        rj.RiftS(width=8, depth=2, key=jax.random.key(0)),
+    ):
+        field = rj.Field(model, extent=1.0)
+        assert_exact(
+            eqx.filter_make_jaxpr(field.render)(jnp.asarray(points, jnp.float32))[0],
+            type(model).__name__,
+        )
 
 
 def lowered_products(text: str) -> list[str]:
     return [line.strip() for line in text.splitlines() if "stablehlo.dot_general" in line]
 
 
-@pytest.mark.parametrize(("module", "name", "method", "options"), STEPS)
-def test_solver_and_training_steps(problem, monkeypatch, module, name, method, options):
-    """Each solver's jitted step, lowered with the arguments of a real run (recorded on the
-    way). Read from StableHLO, not the jaxpr: lineax expands its `linear_solve` (LSMR's
-    inner products and norms) only when lowering."""
-    *_, op = problem
-    step = getattr(module, name)
-    lowered = []
+@pytest.fixture
+def compiled(tmp_path):
+    """Every module XLA compiles inside the `with` block, as StableHLO text: what really ran,
+    libraries' primitives expanded (lineax expands `linear_solve`, so LSMR's inner products
+    and norms, only when lowering)."""
 
-    def recording(*args, **kwargs):
-        if not lowered:
-            lowered.append(step.lower(*args, **kwargs).as_text())
-        return step(*args, **kwargs)
+    class Dump:
+        def __enter__(self):
+            jax.config.update("jax_dump_ir_to", str(tmp_path))
+            jax.config.update("jax_dump_ir_modes", "stablehlo")
+            return self
 
-    monkeypatch.setattr(module, name, recording)
-    signal = op.mv(jnp.ones(op.fn.n_points, jnp.complex64))
-    if method.startswith("rift"):
-        solvers.rift(op, signal, model=method, progress=False, **options)
-    else:
-        least_squares = {
-            "kaczmarz": solvers.kaczmarz,
-            "lsmr": solvers.lsmr,
-            "gauss-newton": solvers.gauss_newton,
-            "fista": solvers.fista,
-        }
-        least_squares[method](op, signal, progress=False, tol=0.0, **options)
-    assert lowered, f"{method} never called {module.__name__}.{name}"
-    found = lowered_products(lowered[0])
-    assert found, f"{method}: {name} has no matrix products"
+        def __exit__(self, *exc):
+            jax.config.update("jax_dump_ir_to", "")
+            self.texts = [path.read_text() for path in sorted(tmp_path.glob("*.mlir"))]
+
+    return Dump()
+
+
+METHODS = {
+    "kaczmarz": (solvers.kaczmarz, {"iterations": 1}),
+    "lsmr": (solvers.lsmr, {"iterations": 2, "check_every": 2}),
+    "gauss-newton": (solvers.gauss_newton, {"iterations": 1, "inner": 2}),
+    "fista": (solvers.fista, {"iterations": 1, "power_iterations": 1}),
+    "rift-n": (functools.partial(solvers.rift, model="rift-n"), {"epochs": 1}),
+    "rift-s": (functools.partial(solvers.rift, model="rift-s"), {"epochs": 1}),
+}
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_what_each_solver_compiles(compiled, method):
+    """A real run of each solver, on a problem size no other test uses (so that it compiles
+    here rather than hitting a cache): every product in every module XLA compiled for it."""
+    radar = rj.Radar(n_frequencies=7, n_tx=3, n_rx=5)
+    viewpoints = rj.Viewpoints.grid(5, 1, polar_range=(0.8, 0.8))
+    op = rj.grt_operator(radar, viewpoints, rj.grid_points(1.0, 0.4))
+    signal = np.asarray(op.mv(jnp.ones(op.fn.n_points, jnp.complex64)))
+    solver, options = METHODS[method]
+    with compiled:
+        solver(op, signal, progress=False, **options)
+    found = [line for text in compiled.texts for line in lowered_products(text)]
+    assert found, f"{method}: no matrix products compiled (cache hit?)"
     bad = [line for line in found if "precision = [HIGHEST, HIGHEST]" not in line]
-    assert not bad, f"{method}: {name}: {len(bad)} of {len(found)} products: {bad[:2]}"
+    assert not bad, f"{method}: {len(bad)} of {len(found)} products: {bad[:2]}"
 
 
-def test_the_lowered_reader_can_fail():
-    """A library-style product lowered outside the setting shows up as not HIGHEST."""
-    a = jnp.ones((3, 3))
-    text = jax.jit(lambda x: jnp.vdot(x[0], x[1])).lower(a).as_text()
-    assert lowered_products(text) and "HIGHEST" not in lowered_products(text)[0]
+def test_the_lowered_reader_can_fail(compiled):
+    """A library-style product compiled without the setting shows up as not HIGHEST."""
+    a = jnp.ones((3, 5))
+    with compiled:
+        jax.jit(lambda x: jnp.vdot(x[0], x[1])).lower(a).compile()
+    found = [line for text in compiled.texts for line in lowered_products(text)]
+    assert found and all("HIGHEST" not in line for line in found)

@@ -5,10 +5,10 @@ Launch one copy per host, the same command on each but for ``--process-id``:
     python docs/examples/multihost.py --coordinator HOST0:12355 --processes 2 --process-id 0
     python docs/examples/multihost.py --coordinator HOST0:12355 --processes 2 --process-id 1
 
-(On a GPU cluster managed by SLURM or similar, ``jax.distributed.initialize()`` with no
-arguments finds all three values itself.) Every process builds the same radar, viewpoints
-and grid; JAX then sees every host's devices, and rift_jax splits the viewpoints over all of
-them. Process 0 writes the results to ``--out``.
+(Under SLURM, or another launcher JAX knows, leave the three options out:
+``jax.distributed.initialize()`` then finds them itself.) Every process builds the same
+radar, viewpoints and grid; JAX then sees every host's devices, and rift_jax splits the
+viewpoints over all of them. Process 0 writes the results to ``--out``.
 """
 
 import argparse
@@ -18,15 +18,15 @@ import jax
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--coordinator", required=True, help="HOST:PORT of process 0")
-    parser.add_argument("--processes", type=int, required=True)
-    parser.add_argument("--process-id", type=int, required=True)
+    parser.add_argument("--coordinator", help="HOST:PORT of process 0")
+    parser.add_argument("--processes", type=int)
+    parser.add_argument("--process-id", type=int)
     parser.add_argument("--out", default="multihost.npz")
     args = parser.parse_args(argv)
 
     # Before anything else touches JAX's devices. CPU hosts talk through gloo; GPUs use NCCL.
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
-    jax.distributed.initialize(args.coordinator, args.processes, args.process_id)
+    jax.distributed.initialize(args.coordinator, args.processes, args.process_id)  # None: found
 
     import numpy as np
 

@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-import functools
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -14,11 +12,9 @@ from jaxtyping import Array, Complex
 
 from .._operator import GRT, GRTOperator
 from .._precision import Float64Pair, exact_jit
-from .._sharding import device_mesh
+from .._sharding import VOXELS, device_mesh, pad_leading
 from ._common import check_problem, relative, zero_signal
 from ._solution import Solution, iterate
-
-_AXIS = "points"
 
 
 def kaczmarz(
@@ -73,9 +69,9 @@ def kaczmarz(
     fn = operator.fn
     n_points, n_dev = fn.n_points, jax.device_count()
     pad = -n_points % n_dev
-    points = Float64Pair(*(jnp.pad(a, ((0, pad), (0, 0)), mode="edge") for a in fn.points))
+    points = pad_leading(fn.points, pad, "edge")
     mask = jnp.arange(n_points + pad) < n_points  # padding voxels never move
-    x = jnp.pad(x, (0, pad))
+    x = pad_leading(x, pad, "constant")
     norm = jnp.linalg.norm(signal)
     rng = np.random.default_rng(seed)
     lam = jnp.float32(relaxation)
@@ -100,15 +96,14 @@ def _sweep(fn: GRT, points, mask, x, signal, order, lam):
 
     def body(points, mask, x, signal, order, lam):
         local = eqx.tree_at(lambda f: f.points, fn, points)
-        total = (lambda v: jax.lax.psum(v, _AXIS)) if n_dev > 1 else (lambda v: v)
-        view = functools.partial(local.view, split_voxels=False)  # already split here
+        total = (lambda v: jax.lax.psum(v, VOXELS)) if n_dev > 1 else (lambda v: v)
 
         def block(k, carry):
             x, squares = carry
             i = order[k]
-            r = signal[i] - total(view(x, i))
-            g = jnp.where(mask, local.view_adjoint(r, i, split_voxels=False), 0)
-            q = total(view(g, i))
+            r = signal[i] - total(local.view(x, i))  # inside shard_map: views do not split
+            g = jnp.where(mask, local.view_adjoint(r, i), 0)
+            q = total(local.view(g, i))
             gg = total(jnp.vdot(g, g).real)
             qq = jnp.vdot(q, q).real
             alpha = jnp.where(qq > 0, gg / jnp.where(qq > 0, qq, 1), 0)
@@ -118,10 +113,10 @@ def _sweep(fn: GRT, points, mask, x, signal, order, lam):
 
     if n_dev == 1:
         return body(points, mask, x, signal, order, lam)
-    voxels = P(_AXIS)
+    voxels = P(VOXELS)
     return jax.shard_map(
         body,
-        mesh=device_mesh(_AXIS),
+        mesh=device_mesh(VOXELS),
         in_specs=(Float64Pair(voxels, voxels), voxels, voxels, P(), P(), P()),
         out_specs=(voxels, P()),
     )(points, mask, x, signal, order, lam)

@@ -81,7 +81,8 @@ def _problem(fn, signal, x, inner: int, damped: bool):
 
     # The residual closes over the data rather than taking optimistix's `args`: optimistix
     # traces `args` (eval_shape) into the linearised residual it keeps in its state, and
-    # those tracers must not escape into the jitted step.
+    # those tracers must not escape into the jitted step. (As leaves of an `eqx.Partial`
+    # they escape the same way.) The price: `_step` compiles once per run, not per size.
     def residual(pair, args):
         del args
         ax = apply(pair)

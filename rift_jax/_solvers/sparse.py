@@ -72,7 +72,8 @@ def fista(
         return solution
     fn = operator.fn
     lipschitz = 1.1 * _power_norm(fn, power_iterations, seed)
-    lam = sparsity * float(_max_backprojection(fn, signal))
+    # a traced scalar, not a Python float: a new signal must not recompile the steps
+    lam = sparsity * _max_backprojection(fn, signal)
     norm = jnp.linalg.norm(signal)
     solver = _solver(1.0 / lipschitz, nonnegative)
     pair = as_pair(x)
@@ -87,7 +88,7 @@ def fista(
     (pair, _), history, stopped = iterate(
         step, (pair, state), iterations=iterations, tol=tol, progress=progress, desc=where
     )
-    stats = {"lambda": lam, "lipschitz": lipschitz, "nonnegative": nonnegative}
+    stats = {"lambda": float(lam), "lipschitz": lipschitz, "nonnegative": nonnegative}
     return Solution(as_complex(pair), history, stopped, stats)
 
 
