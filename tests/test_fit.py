@@ -7,25 +7,17 @@ import rift_jax as rj
 
 
 @pytest.fixture(scope="module")
-def setup():
-    radar = rj.Radar(n_frequencies=8, n_tx=4, n_rx=4)
-    scene = rj.scenes.cube(0.5, extent=2.0, edge=1.0)
-    train, test = rj.Viewpoints.grid(8, 6, polar_range=(0.2, 1.4)).split(30, 6)
-    return radar, scene, train, test
-
-
-@pytest.fixture(scope="module")
-def matched(setup):
+def matched(small_cube):
     """Reconstruction on the scene's own grid: the data are explained exactly."""
-    radar, scene, train, _ = setup
+    radar, scene, train, _ = small_cube
     options = dict(iterations=300, check_every=100, tol=0.0)  # cond(A) ≈ 50
     return rj.fit(
         scene, train, radar=radar, method="lsmr", granularity=0.5, progress=False, **options
     )
 
 
-def test_matched_grid_recovers_the_scene(setup, matched):
-    _, scene, _, test = setup
+def test_matched_grid_recovers_the_scene(small_cube, matched):
+    _, scene, _, test = small_cube
     metrics = matched.evaluate(scene, test)
     assert set(metrics) == {"m_ssim", "m_cos", "t_iou", "p_rmse", "residual"}
     assert metrics["m_ssim"] > 0.99 and metrics["m_cos"] > 0.999 and metrics["t_iou"] == 1.0
@@ -34,8 +26,8 @@ def test_matched_grid_recovers_the_scene(setup, matched):
     assert np.abs(matched.scene.reflectivity).max() == pytest.approx(1.0, rel=1e-2)
 
 
-def test_fit_result(setup, matched):
-    radar, scene, train, test = setup
+def test_fit_result(small_cube, matched):
+    radar, scene, train, test = small_cube
     assert matched.method == "lsmr" and matched.radar == radar and matched.viewpoints is train
     assert matched.scene.granularity == 0.5 and matched.scene.extent == 2.0
     assert matched.seconds > 0 and len(matched.history) == 3
@@ -44,8 +36,8 @@ def test_fit_result(setup, matched):
     assert np.abs(prediction.signal).max() == pytest.approx(1.0)
 
 
-def test_default_inverse_grid_is_twice_as_coarse(setup):
-    radar, scene, train, test = setup
+def test_default_inverse_grid_is_twice_as_coarse(small_cube):
+    radar, scene, train, test = small_cube
     result = rj.fit(scene, train, radar=radar, method="kaczmarz", iterations=2, progress=False)
     assert result.scene.granularity == 1.0 and result.scene.shape == (5, 5, 5)
     metrics = result.evaluate(scene, test)
@@ -54,9 +46,9 @@ def test_default_inverse_grid_is_twice_as_coarse(setup):
     assert 0 <= metrics["p_rmse"] <= np.pi
 
 
-def test_signal_paths_agree(setup, matched):
+def test_signal_paths_agree(small_cube, matched):
     """RadarData and a raw (unnormalised) array give the same reconstruction."""
-    radar, scene, train, _ = setup
+    radar, scene, train, _ = small_cube
     data = rj.synthesize(scene, train, radar)
     kwargs = dict(method="lsmr", extent=2.0, granularity=0.5, progress=False)
     kwargs |= dict(iterations=300, check_every=100, tol=0.0)
@@ -69,16 +61,16 @@ def test_signal_paths_agree(setup, matched):
     np.testing.assert_allclose(from_array.scene.reflectivity, expected, rtol=0, atol=atol)
 
 
-def test_zero_signal_warns(setup):
-    radar, _, train, _ = setup
+def test_zero_signal_warns(small_cube):
+    radar, _, train, _ = small_cube
     zeros = np.zeros((len(train), *radar.signal_shape), np.complex64)
     with pytest.warns(UserWarning, match="all zero"):
         result = rj.fit(zeros, train, radar=radar, extent=2.0, granularity=1.0, progress=False)
     assert not np.any(result.scene.reflectivity) and result.stopped == "zero signal"
 
 
-def test_bad_input(setup):
-    radar, scene, train, _ = setup
+def test_bad_input(small_cube):
+    radar, scene, train, _ = small_cube
     signal = np.ones((len(train), *radar.signal_shape), np.complex64)
     grid = dict(extent=2.0, granularity=1.0, radar=radar)
     with pytest.raises(ValueError, match="unknown `method` 'newton'"):

@@ -9,18 +9,10 @@ import rift_jax as rj
 from rift_jax._support import mask_at
 
 
-@pytest.fixture(scope="module")
-def setup():
-    radar = rj.Radar(n_frequencies=8, n_tx=4, n_rx=4)
-    scene = rj.scenes.cube(0.5, extent=2.0, edge=1.0)
-    train, test = rj.Viewpoints.grid(8, 6, polar_range=(0.2, 1.4)).split(30, 6)
-    return radar, scene, train, test
-
-
-def test_a_support_holding_the_scene_gives_the_full_grid_answer(setup):
+def test_a_support_holding_the_scene_gives_the_full_grid_answer(small_cube):
     """Matched grid, exact data: least squares on the truth dilated by one voxel (64 of 729
     points) and on the whole grid both recover the scene, to float32 agreement."""
-    radar, scene, train, test = setup
+    radar, scene, train, test = small_cube
     support = scipy.ndimage.binary_dilation(np.asarray(scene.reflectivity) != 0)
     options = dict(method="lsmr", granularity=0.5, tol=0.0, progress=False)
     full = rj.fit(scene, train, radar=radar, iterations=300, check_every=100, **options)
@@ -35,8 +27,8 @@ def test_a_support_holding_the_scene_gives_the_full_grid_answer(setup):
 
 
 @pytest.mark.parametrize("method", ["kaczmarz", "gauss-newton", "fista", "rift-n", "rift-s"])
-def test_every_method_takes_a_support(setup, method):
-    radar, scene, train, test = setup
+def test_every_method_takes_a_support(small_cube, method):
+    radar, scene, train, test = small_cube
     support = scipy.ndimage.binary_dilation(np.asarray(scene.reflectivity) != 0)
     budget = {"epochs": 3} if method.startswith("rift") else {"iterations": 2}
     result = rj.fit(
@@ -53,8 +45,8 @@ def test_every_method_takes_a_support(setup, method):
         np.testing.assert_allclose(result.render(0.5).reflectivity, rho, rtol=1e-4, atol=1e-6)
 
 
-def test_a_support_that_drops_part_of_the_scene_warns(setup):
-    radar, scene, train, _ = setup
+def test_a_support_that_drops_part_of_the_scene_warns(small_cube):
+    radar, scene, train, _ = small_cube
     support = np.zeros(scene.shape, bool)
     support[: scene.shape[0] // 2 + 1] = True  # half the box: half the cube is left out
     with pytest.warns(UserWarning, match="may have dropped part of the scene"):
@@ -65,8 +57,8 @@ def test_a_support_that_drops_part_of_the_scene_warns(setup):
     assert result.stats["support_leak"] > 0.1
 
 
-def test_bad_supports(setup):
-    radar, scene, train, _ = setup
+def test_bad_supports(small_cube):
+    radar, scene, train, _ = small_cube
     fit = dict(radar=radar, method="lsmr", granularity=0.5, iterations=1, progress=False)
     for support, match in [
         (np.zeros(scene.shape, bool), "no points"),
