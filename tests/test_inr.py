@@ -319,3 +319,22 @@ def test_non_finite_loss_stops_with_the_best_result(tiny):
     pred = rj.synthesize(result.scene, train, radar)
     kept = fragile(jnp.asarray(pred.signal * pred.scale / data.scale), jnp.asarray(data.signal))
     assert np.isfinite(float(kept))
+
+
+def test_patience_stops_a_converged_run_and_keeps_the_best(tiny):
+    """With `patience`, a run whose loss has stopped improving ends early ("tolerance"),
+    keeps its best parameters, and equals the same run without it up to that epoch."""
+    radar, scene, train, _ = tiny
+    common = dict(radar=radar, method="rift-n", granularity=0.5, progress=False)
+    full = rj.fit(scene, train, epochs=60, learning_rate=1e-1, **common)
+    stopped = rj.fit(scene, train, epochs=60, learning_rate=1e-1, patience=3, **common)
+    run = stopped.stats["epochs_run"]
+    assert stopped.stopped == "tolerance" and run < 60 and len(stopped.history.loss) == run
+    np.testing.assert_array_equal(stopped.history.loss, full.history.loss[:run])
+    # no improvement of 0.1 % over the last `patience` epochs, and the best is kept
+    loss = stopped.history.loss
+    assert loss[-3:].min() >= (1 - 1e-3) * loss[:-3].min()
+    assert stopped.stats["best_loss"] == pytest.approx(loss.min())
+    assert full.stopped == "epochs" and full.stats["epochs_run"] == 60
+    with pytest.raises(ValueError, match="patience"):
+        rj.solvers.Recipe(patience=0)
