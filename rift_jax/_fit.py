@@ -11,7 +11,6 @@ import dataclasses
 import functools
 import inspect
 import time
-import warnings
 from typing import Any
 
 import jax.numpy as jnp
@@ -25,7 +24,7 @@ from ._operator import grt_operator
 from ._scenes import Scene
 from ._sharding import gathered
 from ._solvers import History, TrainingDiverged
-from ._support import LEAK_WARNING, as_mask, mask_at
+from ._support import as_mask, mask_at
 from ._synthesis import RadarData, synthesize
 from ._validation import check_finite
 
@@ -166,9 +165,10 @@ def fit(
       The operator is `grt_operator` on the support's points only, so every method's cost
       falls with it; ρ = 0 elsewhere. Afterwards ``stats["support_leak"]`` is the largest
       backprojection |Aᴴr| of the data residual r *outside* the support, relative to the
-      data's own peak backprojection. `fit` warns when it is at least 0.1 and above the
-      residual's backprojection inside: the support has probably dropped part of the scene
-      (or the data hold what no grid point explains).
+      data's peak backprojection on it (one adjoint pass over the whole grid): near 0 when
+      the support holds the scene and the fit explains the data, high when it dropped a
+      scatterer, and also high when the data hold what no grid point explains (noise, the
+      paper's two-grid protocol). A starting `x0` is given on the whole grid.
     - `seed`: seeds noise, Kaczmarz's block order, FISTA's power iteration, and RIFT's
       initialisation and viewpoint order.
     - `progress`: show a progress bar on runs longer than two seconds.
@@ -199,18 +199,25 @@ def fit(
         scene_or_signal, viewpoints, radar, extent, granularity, snr_db, seed
     )
     grid = Scene.empty(extent, granularity)
-    start = time.perf_counter()  # support estimation counts in the reconstruction's time
+    start = time.perf_counter()  # the support check counts in the reconstruction's time
     operator = grt_operator(radar, viewpoints, grid.points())
-    mask, backprojection = None, None
-    if support is not None:
-        mask = as_mask(support, grid)
-        full, backprojection = operator, _backprojection(operator, signal, grid)
-        operator = grt_operator(radar, viewpoints, grid.points()[mask.ravel()])
+    mask = None if support is None else as_mask(support, grid)
+    if mask is not None:
+        full, operator = operator, grt_operator(radar, viewpoints, grid.points()[mask.ravel()])
     if "seed" in accepted:
         options = {"seed": seed, **options}
     solver_options = options
     if isinstance(options.get("init"), Field):  # a result's field is in the scene's units
         solver_options = {**options, "init": options["init"].scaled(1 / scale)}
+    if "extent" in accepted:  # RIFT: the grid's coordinate scale, with or without a support
+        solver_options = {"extent": float(np.max(np.abs(grid.points()))), **solver_options}
+    if mask is not None and options.get("x0") is not None:  # a start on the whole grid
+        x0 = np.asarray(options["x0"]).reshape(-1)
+        if x0.shape != (mask.size,):
+            raise ValueError(
+                f"fit: `x0` must have one value per grid point ({mask.size}), got {x0.shape}."
+            )
+        solver_options = {**solver_options, "x0": x0[mask.ravel()]}
 
     def result(solution) -> FitResult:
         rho = np.asarray(solution.rho) * scale
@@ -218,7 +225,7 @@ def fit(
         if mask is not None:  # ρ = 0 outside the support
             rho, active = np.zeros(mask.size, rho.dtype), rho
             rho[mask.ravel()] = active
-            leak = _support_leak(full, operator, signal, solution.rho, mask, backprojection)
+            leak = _support_leak(full, operator, signal, solution.rho, mask)
             stats |= {"support_points": int(mask.sum()), "support_leak": leak}
         scene = Scene(jnp.asarray(rho.reshape(grid.shape), jnp.complex64), extent, granularity)
         field = None if solution.field is None else solution.field.scaled(scale)
@@ -244,32 +251,17 @@ def fit(
         raise
 
 
-def _backprojection(operator, signal, grid: Scene) -> np.ndarray:
-    """|Aᴴy| on the grid's shape, one adjoint pass over every grid point."""
-    return np.abs(np.asarray(gathered(operator.fn.adjoint(jnp.asarray(signal))))).reshape(
-        grid.shape
-    )
-
-
-def _support_leak(full, operator, signal, rho, mask, backprojection) -> float:
-    """max over points outside ``mask`` of |Aᴴ(y − A_S ρ)|, over max |Aᴴy|: near the
-    level of a scatterer the support left out, low when it kept them all. It warns only
-    when the residual also backprojects higher outside than inside: a run stopped early
-    leaves residual inside the support, whose sidelobes reach outside too."""
-    residual = jnp.asarray(signal) - gathered(operator.mv(jnp.asarray(rho)))
-    back = np.abs(np.asarray(gathered(full.fn.adjoint(residual)))).reshape(mask.shape)
+def _support_leak(full, operator, signal, rho, mask) -> float:
+    """max over points outside ``mask`` of |Aᴴ(y − A_S ρ)|, over max over the support of
+    |A_Sᴴ y|: near the level of a scatterer the support left out, low when the fit explains
+    what the data backproject outside. One adjoint pass over the whole grid."""
     if mask.all():
         return 0.0
-    leak = float(back[~mask].max() / backprojection.max())
-    if leak >= LEAK_WARNING and back[~mask].max() > back[mask].max():
-        warnings.warn(
-            f"fit: the data residual backprojects to {leak:.2f} of the data's peak outside the "
-            f"support ({int(mask.sum())} of {mask.size} points), more than inside it: the "
-            "support may have dropped part of the scene (or the data hold what no point of "
-            "this grid explains, as under the paper's two-grid protocol).",
-            stacklevel=3,
-        )
-    return leak
+    signal = jnp.asarray(signal)
+    peak = float(jnp.max(jnp.abs(gathered(operator.fn.adjoint(signal)))))
+    residual = signal - gathered(operator.mv(jnp.asarray(rho)))
+    back = np.abs(np.asarray(gathered(full.fn.adjoint(residual)))).reshape(mask.shape)
+    return float(back[~mask].max() / peak) if peak > 0 else 0.0
 
 
 def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):

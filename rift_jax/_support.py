@@ -2,9 +2,11 @@
 
 The paper's scenes fill 1-4 % of their box, yet every GRT call pays for every voxel. On a
 support, the operator is simply `grt_operator` on fewer points (there is no second kernel),
-so every solver's cost falls with the occupied volume. A support that contains the scene
-changes no least-squares answer (tested). One that misses part of the scene cannot explain
-that part's data, and `fit` reports how much the residual backprojects outside it.
+so every solver's cost falls with the occupied volume. On exact data from the grid itself, a
+support that contains the scene changes no least-squares answer (tested). Otherwise it is a
+prior, and a strong one: on the paper's two-grid protocol it lifts LSMR's m-SSIM on the cube
+from 0.28 to 0.97 (benchmarks/support.py). A support that misses part of the scene cannot
+explain that part's data; `fit` reports how much the residual backprojects outside it.
 
 Estimating a support from the data ("auto") is not here yet. A plain threshold of the
 backprojection was measured not to be conservative: on random-primitive scenes it dropped
@@ -16,10 +18,6 @@ from __future__ import annotations
 import numpy as np
 
 from ._scenes import Scene
-
-#: `fit` warns when the data residual backprojects, outside the support, to at least this
-#: fraction of the data's peak backprojection and to more than it does inside.
-LEAK_WARNING = 0.1
 
 
 def as_mask(support, grid: Scene) -> np.ndarray:
@@ -47,15 +45,19 @@ def as_mask(support, grid: Scene) -> np.ndarray:
             )
     if not mask.any():
         raise ValueError("fit: `support` holds no points; it must keep at least one.")
+    mask = mask.copy()  # the result's own: a later change to the caller's array cannot move it
+    mask.setflags(write=False)
     return mask
 
 
 def mask_at(mask: np.ndarray, grid: Scene, points: np.ndarray) -> np.ndarray:
     """Whether each of ``points`` (metres) lies in a support voxel of ``grid``: the voxel
-    whose centre is nearest, so a support carries over to any other grid's points."""
-    index = np.rint((np.asarray(points, np.float64) + grid.extent) / grid.granularity)
-    index = index.astype(np.int64)
-    inside = np.all((index >= 0) & (index < mask.shape[0]), axis=1)
+    whose centre is nearest (a point halfway between two takes the upper one), so a support
+    carries over to any other grid's points. Voxel i sits at (i − (n − 1)/2)·granularity."""
+    n = mask.shape[0]
+    position = np.asarray(points, np.float64) / grid.granularity + (n - 1) / 2
+    index = np.floor(position + 0.5).astype(np.int64)
+    inside = np.all((index >= 0) & (index < n), axis=1)
     keep = np.zeros(len(index), bool)
     keep[inside] = mask[tuple(index[inside].T)]
     return keep

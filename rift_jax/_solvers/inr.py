@@ -133,6 +133,7 @@ def rift(
     width: int = 64,
     depth: int = 4,
     init: Field | None = None,
+    extent: float | None = None,
     seed: int = 0,
     progress: bool = True,
     **overrides,
@@ -148,6 +149,9 @@ def rift(
     - `init`: a `Field` to start from (e.g. a previous result's): a warm start, with a fresh
       optimizer state and learning-rate schedule. Its model must be of the kind `model`
       names (or `model` may be left as is when it is an instance).
+    - `extent`: the half-width (m) that maps the scene onto the INR's [-1, 1]³; default the
+      largest coordinate of the operator's points. `fit` passes its grid's, so that a run on
+      a support (fewer points) sees the same coordinates as one on the whole grid.
     - `seed`: seeds the INR's initialisation and the order of the viewpoints.
     - `**overrides`: any `Recipe` field, replacing the recipe's value (e.g. ``epochs=50``).
 
@@ -171,7 +175,9 @@ def rift(
         return solution
     with jax.enable_x64(True):
         points = np.asarray(to_float64(fn.points))
-    extent = float(np.max(np.abs(points))) or 1.0
+    if extent is None:
+        extent = float(np.max(np.abs(points))) or 1.0
+    check_positive(f"{where}: `extent`", extent)
     coords = jnp.asarray(points, jnp.float32)
     field = _initial_field(where, model, init, width, depth, extent, seed)
     if recipe.learning_rate is None:
@@ -195,7 +201,8 @@ def rift(
     rng = np.random.default_rng(seed)
 
     losses, residuals, seconds = [], [], []
-    best_loss, best_params, best_epoch, improved_epoch = math.inf, params, 0, 0
+    best_loss, best_params, best_epoch = math.inf, params, 0
+    reference, improved_epoch = math.inf, 0
 
     def result(stopped: str) -> Solution:
         best = eqx.combine(best_params, static)
@@ -256,8 +263,10 @@ def rift(
             losses.append(float(np.mean(step_losses)))
             residuals.append(math.sqrt(float(np.sum(step_residuals)) / energy[batches].sum()))
             seconds.append(time.perf_counter() - start)
-            if losses[-1] < (1 - recipe.min_improvement) * best_loss:
-                improved_epoch = epoch  # progress that counts for `patience`
+            if losses[-1] < (1 - recipe.min_improvement) * reference:
+                # progress that counts for `patience`: measured from the last epoch that made
+                # such progress, so small steps cannot keep resetting the bar
+                reference, improved_epoch = losses[-1], epoch
             if losses[-1] < best_loss:
                 # the parameters that the epoch's last loss was measured at (with one step per
                 # epoch, exactly the epoch's loss): never ones whose own loss is unknown
@@ -288,7 +297,8 @@ def _recipe(where: str, recipe, overrides) -> Recipe:
     if unknown := set(overrides) - fields:
         raise ValueError(
             f"{where}: unknown option(s) {sorted(unknown)}; the Recipe's fields are "
-            f"{sorted(fields)}, besides model, recipe, width, depth, init, seed and progress."
+            f"{sorted(fields)}, besides model, recipe, width, depth, init, extent, seed and "
+            "progress."
         )
     return dataclasses.replace(recipe, **overrides)
 
