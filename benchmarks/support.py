@@ -48,6 +48,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--epochs", type=int, default=100)
     parser.add_argument("--full-epochs", type=int, default=2)
     args = parser.parse_args(argv)
+    if args.full_epochs < 2:
+        parser.error("--full-epochs must be at least 2 (the first epoch compiles)")
 
     radar = rj.Radar()
     scene = rj.scenes.cube(0.2)
@@ -70,7 +72,7 @@ def main(argv=None) -> dict:
     out["operator_speedup"] = ratio
     print(f"operator on the support: {ratio:.1f}x faster")
 
-    fit = dict(radar=radar, progress=False)
+    common = dict(radar=radar, progress=False)
     runs = {
         "rift-n support": dict(method="rift-n", support=support, epochs=args.epochs),
         "rift-n grid (partial)": dict(method="rift-n", epochs=args.full_epochs),
@@ -78,7 +80,7 @@ def main(argv=None) -> dict:
         "lsmr grid": dict(method="lsmr", iterations=20, tol=0.0),
     }
     for name, options in runs.items():
-        result = rj.fit(scene, train, **fit, **options)
+        result = rj.fit(scene, train, **common, **options)
         metrics = result.evaluate(scene, test)
         out[name] = {"seconds": result.seconds, **metrics}
         print(
