@@ -200,17 +200,18 @@ def fit(
     )
     grid = Scene.empty(extent, granularity)
     start = time.perf_counter()  # the support check counts in the reconstruction's time
-    operator = grt_operator(radar, viewpoints, grid.points())
+    points = grid.points()
+    operator = grt_operator(radar, viewpoints, points)
     mask = None if support is None else as_mask(support, grid)
     if mask is not None:
-        full, operator = operator, grt_operator(radar, viewpoints, grid.points()[mask.ravel()])
+        full, operator = operator, grt_operator(radar, viewpoints, points[mask.ravel()])
     if "seed" in accepted:
         options = {"seed": seed, **options}
     solver_options = options
     if isinstance(options.get("init"), Field):  # a result's field is in the scene's units
         solver_options = {**options, "init": options["init"].scaled(1 / scale)}
     if "extent" in accepted:  # RIFT: the grid's coordinate scale, with or without a support
-        solver_options = {"extent": float(np.max(np.abs(grid.points()))), **solver_options}
+        solver_options = {"extent": float(np.max(np.abs(points))), **solver_options}
     if mask is not None and options.get("x0") is not None:  # a start on the whole grid
         x0 = np.asarray(options["x0"]).reshape(-1)
         if x0.shape != (mask.size,):

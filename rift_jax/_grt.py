@@ -51,7 +51,7 @@ from jaxtyping import Array, Complex, Float
 
 from ._geometry import C0
 from ._precision import Float64Pair, as_geometry, leading, to_float64
-from ._sharding import over_voxels, pinned, split_voxels
+from ._sharding import over_voxels, pad_leading, pinned, split_voxels
 from ._validation import check_finite, check_positive_int, is_concrete
 
 _TWO_PI = 2.0 * math.pi
@@ -227,12 +227,9 @@ def _chunked(x, chunk: int):
     """Split the leading (voxel) axis of an array or pair into chunks of ``chunk``, zero-padding
     the last one (padded points sit at the origin and carry ρ = 0)."""
 
-    def one(x):
-        n_chunks = -(-x.shape[0] // chunk)
-        x = jnp.pad(x, ((0, n_chunks * chunk - x.shape[0]),) + ((0, 0),) * (x.ndim - 1))
-        return x.reshape((n_chunks, chunk) + x.shape[1:])
-
-    return jax.tree.map(one, x)
+    n_chunks = -(-leading(x) // chunk)
+    x = pad_leading(x, n_chunks * chunk - leading(x), "constant")
+    return jax.tree.map(lambda a: a.reshape((n_chunks, chunk) + a.shape[1:]), x)
 
 
 def default_chunk(adjoint: bool = False) -> int:
