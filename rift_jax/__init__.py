@@ -2,8 +2,8 @@
 
 Data's path through the package: geometry (`Radar`, `Viewpoints`, `antenna_positions`) →
 scene (`Scene`, `rift_jax.scenes`) → GRT kernel (`rift_jax.grt`) → operator
-(`grt_operator`) → solvers and INRs (`rift_jax.solvers`, `RiftN`, `RiftS`, `Field`,
-`rift_jax.losses`) → `fit` → metrics (`rift_jax.metrics`).
+(`grt_operator`; on a support, `estimate_support`) → solvers and INRs (`rift_jax.solvers`,
+`RiftN`, `RiftS`, `Field`, `rift_jax.losses`) → `fit` → metrics (`rift_jax.metrics`).
 """
 
 import os as _os
@@ -52,6 +52,7 @@ from ._operator import GRTOperator as GRTOperator  # noqa: E402
 from ._operator import grt_operator as grt_operator  # noqa: E402
 from ._scenes import Scene as Scene  # noqa: E402
 from ._scenes import grid_points as grid_points  # noqa: E402
+from ._support import estimate_support as estimate_support  # noqa: E402
 from ._synthesis import RadarData as RadarData  # noqa: E402
 from ._synthesis import synthesize as synthesize  # noqa: E402
 

@@ -24,7 +24,7 @@ from ._operator import grt_operator
 from ._scenes import Scene
 from ._sharding import gathered
 from ._solvers import History, TrainingDiverged
-from ._support import as_mask, mask_at
+from ._support import as_mask, estimate_support, mask_at
 from ._synthesis import RadarData, synthesize
 from ._validation import check_finite
 
@@ -134,7 +134,7 @@ def fit(
     granularity: float | None = None,
     extent: float | None = None,
     snr_db: float | None = None,
-    support: None | np.ndarray | Scene = None,
+    support: None | str | np.ndarray | Scene = None,
     seed: int = 0,
     progress: bool = True,
     **options,
@@ -162,13 +162,16 @@ def fit(
     - `snr_db`: noise added to synthesised signals (Scene input only).
     - `support`: which grid points may be non-zero. None: all of them. A boolean mask of
       the grid's shape, or a `Scene` on the same grid (its non-zero voxels): only those.
-      The operator is `grt_operator` on the support's points only, so every method's cost
-      falls with it; ρ = 0 elsewhere. Afterwards ``stats["support_leak"]`` is the largest
-      backprojection |Aᴴr| of the data residual r *outside* the support, relative to the
-      data's peak backprojection on it (one adjoint pass over the whole grid): near 0 when
-      the support holds the scene and the fit explains the data, high when it dropped a
-      scatterer, and also high when the data hold what no grid point explains (noise, the
-      paper's two-grid protocol). A starting `x0` is given on the whole grid.
+      ``"auto"``: estimated from the signal by `rift_jax.estimate_support` with its
+      defaults (a thresholded backprojection sampled finer than the grid; call it yourself
+      to tune it), counted in ``seconds``. The operator is `grt_operator` on the support's
+      points only, so every method's cost falls with it; ρ = 0 elsewhere. Afterwards
+      ``stats["support_leak"]`` is the largest backprojection |Aᴴr| of the data residual r
+      *outside* the support, relative to the data's peak backprojection on it (one adjoint
+      pass over the whole grid): near 0 when the support holds the scene and the fit
+      explains the data, high when it dropped a scatterer, and also high when the data
+      hold what no grid point explains (noise, the paper's two-grid protocol). A starting
+      `x0` is given on the whole grid.
     - `seed`: seeds noise, Kaczmarz's block order, FISTA's power iteration, and RIFT's
       initialisation and viewpoint order.
     - `progress`: show a progress bar on runs longer than two seconds.
@@ -202,6 +205,8 @@ def fit(
     start = time.perf_counter()  # the support check counts in the reconstruction's time
     points = grid.points()
     operator = grt_operator(radar, viewpoints, points)
+    if isinstance(support, str) and support == "auto":
+        support = estimate_support(signal, viewpoints, grid, radar=radar)
     mask = None if support is None else as_mask(support, grid)
     if mask is not None:
         full, operator = operator, grt_operator(radar, viewpoints, points[mask.ravel()])

@@ -8,21 +8,36 @@ prior, and a strong one: on the paper's two-grid protocol it lifts LSMR's m-SSIM
 from 0.28 to 0.97 (benchmarks/support.py). A support that misses part of the scene cannot
 explain that part's data; `fit` reports how much the residual backprojects outside it.
 
-Estimating a support from the data ("auto") is not here yet. A plain threshold of the
-backprojection was measured not to be conservative: on random-primitive scenes it dropped
-true scatterers at thresholds that still skip most of the grid.
+`estimate_support` finds one from the data (``fit(..., support="auto")``): a thresholded,
+dilated backprojection, sampled finer than the grid. Why finer: a voxel is ~100 wavelengths
+wide, so the backprojection's peaks are millimetres wide, and sampled only at the voxel
+centres it misses every scatterer that sits between them (the paper's forward points at odd
+indices: its parking lot's poles all do). See `estimate_support` for what it was measured
+to keep and when it can fail.
 """
 
 from __future__ import annotations
 
-import numpy as np
+import itertools
 
+import jax.numpy as jnp
+import numpy as np
+import scipy.ndimage
+
+from ._geometry import Radar, Viewpoints
+from ._operator import grt_operator
 from ._scenes import Scene
+from ._sharding import gathered
+from ._validation import check_positive_int
 
 
 def as_mask(support, grid: Scene) -> np.ndarray:
     """A user's support (a boolean array of the grid's shape, or a `Scene` on the same grid
     whose non-zero voxels are the support) as a boolean (n, n, n) array."""
+    if isinstance(support, str):
+        raise ValueError(
+            f'fit: `support` must be None, "auto", a boolean mask or a Scene, got {support!r}.'
+        )
     if isinstance(support, Scene):
         if (support.extent, support.granularity) != (grid.extent, grid.granularity):
             raise ValueError(
@@ -61,3 +76,80 @@ def mask_at(mask: np.ndarray, grid: Scene, points: np.ndarray) -> np.ndarray:
     keep = np.zeros(len(index), bool)
     keep[inside] = mask[tuple(index[inside].T)]
     return keep
+
+
+def estimate_support(
+    signal,
+    viewpoints: Viewpoints,
+    grid: Scene,
+    *,
+    radar: Radar | None = None,
+    threshold: float = 0.15,
+    dilation: int = 1,
+    oversample: int = 2,
+    max_views: int = 100,
+) -> np.ndarray:
+    """A conservative support for ``grid`` from the data: where the backprojection is
+    bright, grown by a margin.
+
+    1. Backproject |Aᴴ y| from at most ``max_views`` of the viewpoints (evenly spaced in
+       their order) onto a grid ``oversample`` times finer than ``grid`` over the same
+       extent (nested: the grid's points are among its points).
+    2. Give each voxel the largest value among the fine points nearest to it (a point
+       halfway between voxels counts for each), and divide by the largest value overall.
+    3. Keep the voxels at or above ``threshold``, dilated ``dilation`` times by their six
+       face neighbours.
+
+    **Measured** (100 views of the paper's radar, its grids 0.2 / 0.4 m over ±5 m): with the
+    defaults it kept every true voxel of the cube, sphere, pyramid, parking lot and highway
+    and of random box scenes (ρ from 0.25 to 1), using 3-20 % of the grid. The faintest true
+    voxel stood at 0.18 of the peak; solid objects' sidelobes reach 0.2-0.3, which is why a
+    higher threshold drops scatterers a quarter as bright as the brightest.
+
+    **When it can fail:** a scatterer fainter than ``threshold`` of the brightest one (lower
+    it, at the cost of more points); fewer than ~50 viewpoints (the backprojection's
+    sidelobes rise: with 25 views a sidelobe was the peak); scatterers off the fine samples
+    by more than a fraction of a wavelength (3 mm here), which no grid reconstruction can
+    explain either: raise ``oversample``. After a fit on it, ``stats["support_leak"]``
+    reports how much of the residual backprojects outside.
+
+    **Arguments:** `signal` (n_views, n_freq, n_tx, n_rx), rows at `viewpoints`; `grid`: the
+    reconstruction grid (a `Scene`, its values unused); `radar` (default the paper's).
+
+    **Returns:** a read-only boolean mask of ``grid.shape``.
+    """
+    radar = Radar() if radar is None else radar
+    if not 0 < threshold < 1:
+        raise ValueError(f"estimate_support: `threshold` must be in (0, 1), got {threshold!r}.")
+    if not (isinstance(dilation, int | np.integer) and dilation >= 0):
+        raise ValueError(f"estimate_support: `dilation` must be an int ≥ 0, got {dilation!r}.")
+    check_positive_int("estimate_support: `oversample`", oversample)
+    check_positive_int("estimate_support: `max_views`", max_views)
+    signal = np.asarray(signal)
+    if signal.shape != (len(viewpoints), *radar.signal_shape):
+        raise ValueError(
+            f"estimate_support: `signal` must have shape {(len(viewpoints), *radar.signal_shape)}"
+            f" for {len(viewpoints)} viewpoints, got {signal.shape}."
+        )
+    rows = np.unique(np.linspace(0, len(viewpoints) - 1, min(max_views, len(viewpoints))).round())
+    rows = rows.astype(np.int64)
+    fine = Scene.empty(grid.extent, grid.granularity / oversample)
+    points = fine.points()
+    operator = grt_operator(radar, viewpoints[rows], points)
+    back = np.abs(np.asarray(gathered(operator.fn.adjoint(jnp.asarray(signal[rows])))))
+    pooled = np.zeros(grid.shape, np.float64)
+    n = grid.shape[0]
+    position = points / grid.granularity + (n - 1) / 2
+    # a fine point halfway between voxels counts for each of them: either may hold it
+    for offsets in itertools.product((-1e-6, 1e-6), repeat=3):
+        index = np.floor(position + 0.5 + np.asarray(offsets)).astype(np.int64)
+        inside = np.all((index >= 0) & (index < n), axis=1)
+        np.maximum.at(pooled, tuple(index[inside].T), back[inside])
+    peak = pooled.max()
+    if peak == 0:
+        raise ValueError("estimate_support: the signal is zero; there is nothing to find.")
+    mask = pooled >= threshold * peak
+    if dilation:
+        mask = scipy.ndimage.binary_dilation(mask, iterations=dilation)
+    mask.setflags(write=False)
+    return mask
