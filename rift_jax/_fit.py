@@ -24,9 +24,9 @@ from ._operator import grt_operator
 from ._scenes import Scene
 from ._sharding import gathered
 from ._solvers import History, TrainingDiverged
-from ._support import as_mask, estimate_support, mask_at
+from ._support import as_mask, estimate_support, mask_at, nearest_voxels
 from ._synthesis import RadarData, synthesize
-from ._validation import check_finite
+from ._validation import check_finite, check_positive
 
 METHODS = {
     "kaczmarz": _solvers.kaczmarz,
@@ -57,6 +57,9 @@ class FitResult:
     - `support`: the boolean (n, n, n) mask of the grid points the reconstruction used (ρ = 0
       elsewhere, also in `render`), or None for the whole grid. ``stats["support_leak"]``
       says whether it dropped part of the scene (see `fit`).
+    - `trained`: for RIFT trained at a finer ``train_granularity``, the field on that grid
+      where it was trained last (zero elsewhere): what `predict` synthesises from. None
+      otherwise.
     """
 
     scene: Scene
@@ -70,6 +73,7 @@ class FitResult:
     stats: dict[str, Any] = dataclasses.field(default_factory=dict)
     field: Field | None = None
     support: np.ndarray | None = None
+    trained: Scene | None = None
 
     @property
     def n_points(self) -> int:
@@ -84,8 +88,9 @@ class FitResult:
     def predict(self, viewpoints: Viewpoints) -> RadarData:
         """The reconstruction's signals at ``viewpoints``, normalised like `synthesize`
         (max |S| = 1). For RIFT these are the INR's signals: the GRT of its rendering on the
-        grid it was trained on, i.e. of `scene`."""
-        return synthesize(self.scene, viewpoints, self.radar)
+        points it was trained on (`scene`, or `trained` when it was trained finer)."""
+        scene = self.scene if self.trained is None else self.trained
+        return synthesize(scene, viewpoints, self.radar)
 
     def render(self, granularity: float, extent: float | None = None) -> Scene:
         """The INR evaluated on another grid (``±extent``, default the scene's, at
@@ -176,7 +181,12 @@ def fit(
       initialisation and viewpoint order.
     - `progress`: show a progress bar on runs longer than two seconds.
     - `**options`: passed to the solver (``iterations``, ``tol``, ``relaxation``, ...; for
-      RIFT ``recipe``, ``epochs``, ``loss``, ...; see `rift_jax.solvers`).
+      RIFT ``recipe``, ``epochs``, ``loss``, ``prune``, ...; see `rift_jax.solvers`). RIFT
+      also takes ``train_granularity``: coarse to fine, it trains the field for its last
+      ``fine_epochs`` (default half the epochs) on the points of the grid of that
+      granularity (e.g. the data's own) that fall in the support, while `scene` is still
+      its rendering on the inverse grid (for the paper's metrics) and `predict` uses what
+      was trained (`FitResult.trained`).
 
     **Returns:** a `FitResult`.
 
@@ -217,6 +227,17 @@ def fit(
         solver_options = {**options, "init": options["init"].scaled(1 / scale)}
     if "extent" in accepted:  # RIFT: the grid's coordinate scale, with or without a support
         solver_options = {"extent": float(np.max(np.abs(points))), **solver_options}
+    fine = None
+    if "fine_points" in accepted and "train_granularity" in options:  # RIFT, coarse to fine
+        solver_options = dict(solver_options)
+        if (fine_granularity := solver_options.pop("train_granularity")) is not None:
+            check_positive("fit: `train_granularity`", fine_granularity)
+            fine = Scene.empty(extent, fine_granularity)
+            candidates = fine.points()
+            keep = np.ones(len(candidates), bool)
+            if mask is not None:
+                keep = mask_at(mask, grid, candidates)
+            solver_options["fine_points"] = candidates[keep]
     if mask is not None and options.get("x0") is not None:  # a start on the whole grid
         x0 = np.asarray(options["x0"]).reshape(-1)
         if x0.shape != (mask.size,):
@@ -235,6 +256,18 @@ def fit(
             stats |= {"support_points": int(mask.sum()), "support_leak": leak}
         scene = Scene(jnp.asarray(rho.reshape(grid.shape), jnp.complex64), extent, granularity)
         field = None if solution.field is None else solution.field.scaled(scale)
+        trained = None
+        if fine is not None and "active" in stats:  # the field where it was trained last
+            where = np.flatnonzero(keep)[stats.pop("active")]
+            values = np.zeros(keep.size, np.complex64)
+            values[where] = np.asarray(field.render(fine.points()[where]))
+            trained = Scene(jnp.asarray(values.reshape(fine.shape)), extent, fine.granularity)
+            # on the inverse grid too, ρ = 0 in voxels that hold no trained point
+            near = np.zeros(grid.shape, bool)
+            for index, inside in nearest_voxels(grid, fine.points()[where]):
+                near[tuple(index[inside].T)] = True
+            rho = np.where(near.ravel(), rho, 0)
+            scene = Scene(jnp.asarray(rho.reshape(grid.shape), jnp.complex64), extent, granularity)
         seconds = time.perf_counter() - start
         return FitResult(
             scene,
@@ -248,6 +281,7 @@ def fit(
             stats,
             field,
             mask,
+            trained,
         )
 
     try:

@@ -78,6 +78,17 @@ def mask_at(mask: np.ndarray, grid: Scene, points: np.ndarray) -> np.ndarray:
     return keep
 
 
+def nearest_voxels(grid: Scene, points: np.ndarray):
+    """For each of the 8 ways to break ties: (the (k, 3) voxel index of each of ``points``
+    nearest to it, whether it is on the grid). A point halfway between voxels (as the odd
+    points of a grid twice as fine are) gets each of them once: either may hold it."""
+    n = grid.shape[0]
+    position = np.asarray(points, np.float64) / grid.granularity + (n - 1) / 2
+    for offsets in itertools.product((-1e-6, 1e-6), repeat=3):
+        index = np.floor(position + 0.5 + np.asarray(offsets)).astype(np.int64)
+        yield index, np.all((index >= 0) & (index < n), axis=1)
+
+
 def estimate_support(
     signal,
     viewpoints: Viewpoints,
@@ -138,12 +149,7 @@ def estimate_support(
     operator = grt_operator(radar, viewpoints[rows], points)
     back = np.abs(np.asarray(gathered(operator.fn.adjoint(jnp.asarray(signal[rows])))))
     pooled = np.zeros(grid.shape, np.float64)
-    n = grid.shape[0]
-    position = points / grid.granularity + (n - 1) / 2
-    # a fine point halfway between voxels counts for each of them: either may hold it
-    for offsets in itertools.product((-1e-6, 1e-6), repeat=3):
-        index = np.floor(position + 0.5 + np.asarray(offsets)).astype(np.int64)
-        inside = np.all((index >= 0) & (index < n), axis=1)
+    for index, inside in nearest_voxels(grid, points):
         np.maximum.at(pooled, tuple(index[inside].T), back[inside])
     peak = pooled.max()
     if peak == 0:

@@ -24,15 +24,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+import scipy.spatial
 from jaxtyping import Array, Complex, Float
 from tqdm.auto import tqdm
 
 from .._losses import LOSSES
 from .._models import MODELS, AbstractINR, Field
 from .._operator import GRT, GRTOperator
-from .._precision import exact_jit, to_float64
+from .._precision import exact_jit, split, to_float64
 from .._sharding import replicated
-from .._validation import check_positive, check_positive_int
+from .._validation import as_finite_array, check_positive, check_positive_int
 from ._common import as_complex, as_pair, check_problem, realified, zero_signal
 from ._solution import History, Solution, TrainingDiverged
 
@@ -61,6 +62,14 @@ class Recipe:
       keeps the best parameters. At the paper's scale the loss is flat after ~20 of 100
       epochs, so a `patience` of 10 can save most of a run.
     - `min_improvement`: see `patience`.
+    - `prune`: train only an *active set* of the operator's points: those where |ρ| is at
+      least ``prune`` times its largest value, and their neighbours (within √3 point
+      spacings). The set is chosen from the field itself every `recheck_every` epochs (the
+      first time after `recheck_every` epochs, or at once from an `init` field), and grows
+      back wherever the field has risen since; each step's cost follows the active points.
+      The result is what was trained: the field on the last active set, zero elsewhere.
+      None: train every point.
+    - `recheck_every`: see `prune`.
     """
 
     loss: str | Callable = "robust"
@@ -74,6 +83,8 @@ class Recipe:
     adam_eps: float = 1e-8
     patience: int | None = None
     min_improvement: float = 1e-3
+    prune: float | None = None
+    recheck_every: int = 10
 
     def __post_init__(self):
         if not callable(self.loss) and self.loss not in LOSSES:
@@ -97,6 +108,9 @@ class Recipe:
             raise ValueError(f"Recipe: `gain` must be True or False, got {self.gain!r}.")
         if self.patience is not None:
             check_positive_int("Recipe: `patience` (or None)", self.patience)
+        if self.prune is not None and not 0 < self.prune < 1:
+            raise ValueError(f"Recipe: `prune` must be in (0, 1) or None, got {self.prune!r}.")
+        check_positive_int("Recipe: `recheck_every`", self.recheck_every)
         if not 0 <= self.min_improvement < 1:
             raise ValueError(
                 f"Recipe: `min_improvement` must be in [0, 1), got {self.min_improvement!r}."
@@ -134,6 +148,8 @@ def rift(
     depth: int = 4,
     init: Field | None = None,
     extent: float | None = None,
+    fine_points: Float[np.ndarray, "k 3"] | None = None,
+    fine_epochs: int | None = None,
     seed: int = 0,
     progress: bool = True,
     **overrides,
@@ -152,16 +168,23 @@ def rift(
     - `extent`: the half-width (m) that maps the scene onto the INR's [-1, 1]³; default the
       largest coordinate of the operator's points. `fit` passes its grid's, so that a run on
       a support (fewer points) sees the same coordinates as one on the whole grid.
+    - `fine_points`: (k, 3) points (m), e.g. a finer grid's: coarse to fine. The last
+      `fine_epochs` epochs (default half; all of them after `patience` ends the coarse
+      stage early) train the field on these points instead of the operator's, with the
+      same optimizer state; the recipe's `prune` picks their active set from the field at
+      once. The signals are then the GRT of the field on these points (`stats["active"]`
+      marks the ones trained last); `rho` is still its rendering on the operator's points.
     - `seed`: seeds the INR's initialisation and the order of the viewpoints.
     - `**overrides`: any `Recipe` field, replacing the recipe's value (e.g. ``epochs=50``).
 
     **Returns:** a `Solution` whose `field` is the trained `Field` of the epoch with the
     lowest mean training loss (the parameters before that epoch's last update: with one
-    step per epoch, exactly those the loss was measured at) and whose `rho` is its
-    rendering. The history has per epoch the mean loss and the relative residual
-    ‖y − Aρ‖/‖y‖ accumulated over the epoch's minibatches (each at its step's parameters).
-    ``stopped`` is ``"epochs"``, or ``"tolerance"`` when the recipe's `patience` ended the
-    run early (``stats["epochs_run"]`` epochs).
+    step per epoch, exactly those the loss was measured at; from the fine stage when there
+    is one) and whose `rho` is its rendering. The history has per epoch the mean loss and
+    the relative residual ‖y − Aρ‖/‖y‖ accumulated over the epoch's minibatches (each at its
+    step's parameters). ``stopped`` is ``"epochs"``, or ``"tolerance"`` when the recipe's
+    `patience` ended the run early (``stats["epochs_run"]`` epochs).
+    ``stats["active_points"]`` counts the points trained in the last epoch.
 
     **Raises:** `TrainingDiverged` (a ValueError) if a loss or gradient becomes non-finite,
     naming the epoch; its ``.solution`` holds the best parameters so far.
@@ -179,6 +202,24 @@ def rift(
         extent = float(np.max(np.abs(points))) or 1.0
     check_positive(f"{where}: `extent`", extent)
     coords = jnp.asarray(points, jnp.float32)
+    last = recipe.epochs
+    switch = None  # the first epoch on `fine_points`
+    if fine_points is not None:
+        fine_points = as_finite_array(fine_points, f"{where}: `fine_points`", np.float64)
+        if fine_points.ndim != 2 or fine_points.shape[1] != 3 or len(fine_points) == 0:
+            raise ValueError(
+                f"{where}: `fine_points` must have shape (k, 3) with k ≥ 1, got "
+                f"{fine_points.shape}."
+            )
+        fine_epochs = recipe.epochs // 2 if fine_epochs is None else fine_epochs
+        if not (isinstance(fine_epochs, int) and 1 <= fine_epochs < recipe.epochs):
+            raise ValueError(
+                f"{where}: `fine_epochs` must be an int in [1, {recipe.epochs - 1}] (the "
+                f"epochs are {recipe.epochs}), got {fine_epochs!r}."
+            )
+        switch = recipe.epochs - fine_epochs + 1
+    elif fine_epochs is not None:
+        raise ValueError(f"{where}: `fine_epochs` needs `fine_points`.")
     field = _initial_field(where, model, init, width, depth, extent, seed)
     if recipe.learning_rate is None:
         recipe = dataclasses.replace(recipe, learning_rate=field.model.learning_rate)
@@ -196,9 +237,17 @@ def rift(
     params, static = eqx.partition(field, spec)
     optimizer = _optimizer(recipe, steps)
     opt_state = optimizer.init(params)
-    params, opt_state, fn, coords, signal = replicated((params, opt_state, fn, coords, signal))
+    params, opt_state, signal = replicated((params, opt_state, signal))
     energy = np.sum(np.abs(np.asarray(signal)) ** 2, axis=(1, 2, 3))
     rng = np.random.default_rng(seed)
+    # the candidate points (the operator's, then `fine_points`) and the active ones among
+    # them (None: all); the step sees only the active ones
+    candidates = _Candidates(fn, points)
+    active = None
+    if recipe.prune is not None and init is not None:
+        active = candidates.select(field, recipe.prune)
+    step_fn, step_coords = candidates.restricted(active)
+    stage_start = 1
 
     losses, residuals, seconds = [], [], []
     best_loss, best_params, best_epoch = math.inf, params, 0
@@ -207,6 +256,10 @@ def rift(
     def result(stopped: str) -> Solution:
         best = eqx.combine(best_params, static)
         history = History(np.asarray(residuals), np.asarray(seconds), np.asarray(losses))
+        trained = np.ones(len(candidates.points), bool)
+        if active is not None:
+            trained[:] = False
+            trained[active] = True
         stats = {
             "model": name,
             "recipe": dataclasses.asdict(recipe),
@@ -215,14 +268,43 @@ def rift(
             "best_loss": best_loss,
             "steps_per_epoch": steps,
             "batch_views": batch,
+            "active_points": int(trained.sum()),
         }
-        return Solution(best.render(coords), history, stopped, stats, field=best)
+        rho = best.render(coords)
+        if switch is not None:
+            stats |= {"fine_from_epoch": switch, "active": trained}
+        elif active is not None:  # what was trained: the field on the active set, 0 elsewhere
+            rho = jnp.where(jnp.asarray(trained), rho, 0)
+        return Solution(rho, history, stopped, stats, field=best)
 
     start = time.perf_counter()
     bar = tqdm(total=recipe.epochs, desc=where, disable=not progress, delay=2.0, leave=False)
     with bar:
-        for epoch in range(1, recipe.epochs + 1):
+        epoch = 0
+        while epoch < last:
+            epoch += 1
             epoch_start = time.perf_counter()
+            current = eqx.combine(params, static)
+            if epoch == switch:  # coarse to fine: same parameters and optimizer state
+                candidates = _Candidates(eqx.tree_at(lambda g: g.points, fn, split(fine_points)))
+                active = None if recipe.prune is None else candidates.select(current, recipe.prune)
+                step_fn, step_coords = candidates.restricted(active)
+                stage_start = epoch
+                best_loss, reference, improved_epoch = math.inf, math.inf, epoch - 1
+            elif (
+                recipe.prune is not None
+                and epoch > stage_start
+                and (epoch - stage_start) % recipe.recheck_every == 0
+            ):
+                chosen = candidates.select(current, recipe.prune)
+                if active is None or len(chosen) < 0.8 * len(active):
+                    active = chosen  # shrink (a new set, one recompilation)
+                elif not np.all(np.isin(chosen, active)):
+                    active = np.union1d(active, chosen)  # grow back where the field rose
+                else:
+                    chosen = None  # no change: no recompilation
+                if chosen is not None:
+                    step_fn, step_coords = candidates.restricted(active)
             batches = _batches(rng, n_views, batch)
             indices = replicated(jnp.asarray(batches))
             step_losses, finite, step_residuals = [], [], []
@@ -235,8 +317,8 @@ def rift(
                     static,
                     optimizer,
                     recipe.loss_fn,
-                    fn,
-                    coords,
+                    step_fn,
+                    step_coords,
                     signal,
                     indices[k],
                 )
@@ -279,8 +361,48 @@ def rift(
             )
             bar.update()
             if recipe.patience is not None and epoch - improved_epoch >= recipe.patience:
-                return result("tolerance")
+                if switch is None or epoch >= switch:
+                    return result("tolerance")
+                # the coarse stage has converged: the fine one starts now, with its epochs
+                switch, last = epoch + 1, epoch + fine_epochs
+                bar.total = last
     return result("epochs")
+
+
+class _Candidates:
+    """The points a RIFT stage may train (the GRT `fn`'s) and how to pick its active set."""
+
+    def __init__(self, fn: GRT, points: np.ndarray | None = None):
+        if points is None:
+            with jax.enable_x64(True):
+                points = np.asarray(to_float64(fn.points))
+        self.fn, self.points = fn, points
+        self.coords = jnp.asarray(points, jnp.float32)
+        self.tree = scipy.spatial.cKDTree(points)
+        if len(points) > 1:  # neighbours: within √3 spacings (the 26 around a grid point)
+            distance, _ = self.tree.query(points, k=2)
+            spacing = np.min(distance[:, 1][distance[:, 1] > 0], initial=np.inf)
+            self.radius = 1.01 * math.sqrt(3) * spacing if np.isfinite(spacing) else 0.0
+        else:
+            self.radius = 0.0
+
+    def select(self, field: Field, prune: float) -> np.ndarray:
+        """The sorted indices of the points where |ρ| ≥ prune · max |ρ|, and their
+        neighbours."""
+        magnitude = np.abs(np.asarray(field.render(self.coords)))
+        seeds = np.flatnonzero(magnitude >= prune * magnitude.max())
+        near = self.tree.query_ball_point(self.points[seeds], self.radius, return_sorted=False)
+        return np.unique(np.concatenate([seeds, *map(np.asarray, near)]).astype(np.int64))
+
+    def restricted(self, active: np.ndarray | None):
+        """(GRT, float32 coordinates) of the active points (all for None), replicated."""
+        if active is None:
+            return replicated((self.fn, self.coords))
+        index = jnp.asarray(active)
+        fn = eqx.tree_at(
+            lambda g: g.points, self.fn, jax.tree.map(lambda a: a[index], self.fn.points)
+        )
+        return replicated((fn, self.coords[index]))
 
 
 def _recipe(where: str, recipe, overrides) -> Recipe:
