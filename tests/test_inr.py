@@ -348,3 +348,59 @@ def test_patience_stops_a_converged_run_and_keeps_the_best(tiny):
     assert full.stopped == "epochs" and full.stats["epochs_run"] == 60
     with pytest.raises(ValueError, match="patience"):
         rj.solvers.Recipe(patience=0)
+
+
+# -- active set and coarse to fine ---------------------------------------------------------
+
+
+def test_an_active_set_of_every_point_changes_nothing(small_cube):
+    """`prune` so low that every point stays active: the run is the unpruned one, exactly
+    (the active set's GRT is the whole one, gathered)."""
+    radar, scene, train, _ = small_cube
+    common = dict(radar=radar, method="rift-n", granularity=0.5, epochs=12, progress=False)
+    plain = rj.fit(scene, train, **common)
+    pruned = rj.fit(scene, train, prune=1e-12, recheck_every=5, **common)
+    assert pruned.stats["active_points"] == plain.stats["active_points"] == 729
+    np.testing.assert_array_equal(pruned.history.loss, plain.history.loss)
+    np.testing.assert_array_equal(pruned.scene.reflectivity, plain.scene.reflectivity)
+
+
+def test_pruning_trains_the_scene_on_fewer_points(small_cube):
+    """On exact data, the active set shrinks to the cube and its neighbours, the result is
+    zero elsewhere (that is what was trained), and it scores as the unpruned run does."""
+    radar, scene, train, test = small_cube
+    common = dict(radar=radar, method="rift-n", granularity=0.5, epochs=160, progress=False)
+    plain = rj.fit(scene, train, **common)
+    pruned = rj.fit(scene, train, prune=0.05, recheck_every=10, **common)
+    active = pruned.stats["active_points"]
+    assert 27 < active < 300  # the 27 voxels of the cube, and some of their neighbours
+    assert np.count_nonzero(np.asarray(pruned.scene.reflectivity)) <= active
+    a, b = plain.evaluate(scene, test), pruned.evaluate(scene, test)
+    assert a["m_ssim"] > 0.9 and b["m_ssim"] > 0.9 and abs(a["m_ssim"] - b["m_ssim"]) < 0.1
+    with pytest.raises(ValueError, match="prune"):
+        rj.solvers.Recipe(prune=1.0)
+    with pytest.raises(ValueError, match="recheck_every"):
+        rj.solvers.Recipe(recheck_every=0)
+
+
+def test_coarse_to_fine_explains_what_the_coarse_grid_cannot(small_cube):
+    """Data made on a 0.5 m grid, inverse grid 1 m: trained on the inverse grid alone the
+    field cannot explain them; its last epochs on the 0.5 m points can. `scene` stays on the
+    inverse grid, and `predict` synthesises from `trained`."""
+    radar, scene, train, test = small_cube
+    common = dict(radar=radar, method="rift-n", granularity=1.0, epochs=80, progress=False)
+    coarse = rj.fit(scene, train, **common)
+    fine = rj.fit(scene, train, train_granularity=0.5, fine_epochs=60, prune=0.05, **common)
+    assert coarse.trained is None and fine.trained.shape == (9, 9, 9)
+    assert fine.scene.shape == coarse.scene.shape == (5, 5, 5)
+    assert fine.stats["fine_from_epoch"] == 21 and fine.stats["active_points"] < 729
+    assert fine.evaluate(scene, test)["p_rmse"] < 0.1 < 1.0 < coarse.evaluate(scene, test)["p_rmse"]
+    assert fine.residual < 0.05 < 0.5 < coarse.residual
+    expected = rj.synthesize(fine.trained, test, radar).signal
+    np.testing.assert_array_equal(fine.predict(test).signal, expected)
+    with pytest.raises(ValueError, match="train_granularity"):
+        rj.fit(scene, train, train_granularity=-0.5, **common)
+    with pytest.raises(ValueError, match="fine_epochs"):
+        rj.fit(scene, train, train_granularity=0.5, fine_epochs=80, **common)
+    with pytest.raises(ValueError, match="takes no option"):
+        rj.fit(scene, train, method="lsmr", granularity=1.0, train_granularity=0.5)
