@@ -26,7 +26,7 @@ from ._sharding import gathered
 from ._solvers import History, TrainingDiverged
 from ._support import as_mask, estimate_support, mask_at, nearest_voxels
 from ._synthesis import RadarData, synthesize
-from ._validation import check_finite, check_positive
+from ._validation import check_finite
 
 METHODS = {
     "kaczmarz": _solvers.kaczmarz,
@@ -103,7 +103,7 @@ class FitResult:
         grid = Scene.empty(self.scene.extent if extent is None else extent, granularity)
         points = grid.points()
         rho = np.asarray(self.field.render(points))
-        if self.support is not None:  # zero where it was never trained, as in `scene`
+        if self.support is not None:  # zero outside the support, where it was never trained
             rho = np.where(mask_at(self.support, self.scene, points), rho, 0)
         return Scene(
             jnp.asarray(rho.reshape(grid.shape), jnp.complex64), grid.extent, grid.granularity
@@ -231,7 +231,13 @@ def fit(
     if "fine_points" in accepted and "train_granularity" in options:  # RIFT, coarse to fine
         solver_options = dict(solver_options)
         if (fine_granularity := solver_options.pop("train_granularity")) is not None:
-            check_positive("fit: `train_granularity`", fine_granularity)
+            if not (
+                isinstance(fine_granularity, int | float) and 0 < fine_granularity < granularity
+            ):
+                raise ValueError(
+                    "fit: `train_granularity` must be finer than the inverse grid's "
+                    f"granularity ({granularity} m) and > 0, got {fine_granularity!r}."
+                )
             fine = Scene.empty(extent, fine_granularity)
             candidates = fine.points()
             keep = np.ones(len(candidates), bool)
@@ -252,12 +258,9 @@ def fit(
         if mask is not None:  # ρ = 0 outside the support
             rho, active = np.zeros(mask.size, rho.dtype), rho
             rho[mask.ravel()] = active
-            leak = _support_leak(full, operator, signal, solution.rho, mask)
-            stats |= {"support_points": int(mask.sum()), "support_leak": leak}
-        scene = Scene(jnp.asarray(rho.reshape(grid.shape), jnp.complex64), extent, granularity)
         field = None if solution.field is None else solution.field.scaled(scale)
         trained = None
-        if fine is not None and "active" in stats:  # the field where it was trained last
+        if fine is not None and "active" in stats:  # the field where it was trained
             where = np.flatnonzero(keep)[stats.pop("active")]
             values = np.zeros(keep.size, np.complex64)
             values[where] = np.asarray(field.render(fine.points()[where]))
@@ -267,7 +270,11 @@ def fit(
             for index, inside in nearest_voxels(grid, fine.points()[where]):
                 near[tuple(index[inside].T)] = True
             rho = np.where(near.ravel(), rho, 0)
-            scene = Scene(jnp.asarray(rho.reshape(grid.shape), jnp.complex64), extent, granularity)
+        if mask is not None:
+            kept = jnp.asarray(rho[mask.ravel()] / scale)  # the solver's units
+            leak = _support_leak(full, operator, signal, kept, mask)
+            stats |= {"support_points": int(mask.sum()), "support_leak": leak}
+        scene = Scene(jnp.asarray(rho.reshape(grid.shape), jnp.complex64), extent, granularity)
         seconds = time.perf_counter() - start
         return FitResult(
             scene,

@@ -28,7 +28,7 @@ from ._geometry import Radar, Viewpoints
 from ._operator import grt_operator
 from ._scenes import Scene
 from ._sharding import gathered
-from ._validation import check_positive_int
+from ._validation import check_finite, check_positive_int
 
 
 def as_mask(support, grid: Scene) -> np.ndarray:
@@ -66,15 +66,13 @@ def as_mask(support, grid: Scene) -> np.ndarray:
 
 
 def mask_at(mask: np.ndarray, grid: Scene, points: np.ndarray) -> np.ndarray:
-    """Whether each of ``points`` (metres) lies in a support voxel of ``grid``: the voxel
-    whose centre is nearest (a point halfway between two takes the upper one), so a support
-    carries over to any other grid's points. Voxel i sits at (i − (n − 1)/2)·granularity."""
-    n = mask.shape[0]
-    position = np.asarray(points, np.float64) / grid.granularity + (n - 1) / 2
-    index = np.floor(position + 0.5).astype(np.int64)
-    inside = np.all((index >= 0) & (index < n), axis=1)
-    keep = np.zeros(len(index), bool)
-    keep[inside] = mask[tuple(index[inside].T)]
+    """Whether each of ``points`` (metres) lies in a support voxel of ``grid``: a voxel
+    whose centre is nearest to it (for a point halfway between voxels, any of them), so a
+    support carries over to any other grid's points. Voxel i sits at
+    (i − (n − 1)/2)·granularity."""
+    keep = np.zeros(len(points), bool)
+    for index, inside in nearest_voxels(grid, points):
+        keep[inside] |= mask[tuple(index[inside].T)]
     return keep
 
 
@@ -87,6 +85,15 @@ def nearest_voxels(grid: Scene, points: np.ndarray):
     for offsets in itertools.product((-1e-6, 1e-6), repeat=3):
         index = np.floor(position + 0.5 + np.asarray(offsets)).astype(np.int64)
         yield index, np.all((index >= 0) & (index < n), axis=1)
+
+
+def finer_points(grid: Scene, oversample: int) -> np.ndarray:
+    """The (m, 3) points of the grid ``oversample`` times finer than ``grid`` whose points
+    include the grid's own (nested, whatever the grid's point count)."""
+    n = grid.shape[0]
+    m = oversample * (n - 1) + 1
+    axis = (np.arange(m) - (m - 1) / 2) * (grid.granularity / oversample)
+    return np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
 def estimate_support(
@@ -104,8 +111,8 @@ def estimate_support(
     bright, grown by a margin.
 
     1. Backproject |Aᴴ y| from at most ``max_views`` of the viewpoints (evenly spaced in
-       their order) onto a grid ``oversample`` times finer than ``grid`` over the same
-       extent (nested: the grid's points are among its points).
+       their order) onto the grid ``oversample`` times finer than ``grid`` whose points
+       include the grid's (`finer_points`).
     2. Give each voxel the largest value among the fine points nearest to it (a point
        halfway between voxels counts for each), and divide by the largest value overall.
     3. Keep the voxels at or above ``threshold``, dilated ``dilation`` times by their six
@@ -130,9 +137,9 @@ def estimate_support(
     **Returns:** a read-only boolean mask of ``grid.shape``.
     """
     radar = Radar() if radar is None else radar
-    if not 0 < threshold < 1:
+    if not (isinstance(threshold, int | float | np.floating) and 0 < threshold < 1):
         raise ValueError(f"estimate_support: `threshold` must be in (0, 1), got {threshold!r}.")
-    if not (isinstance(dilation, int | np.integer) and dilation >= 0):
+    if isinstance(dilation, bool) or not (isinstance(dilation, int | np.integer) and dilation >= 0):
         raise ValueError(f"estimate_support: `dilation` must be an int ≥ 0, got {dilation!r}.")
     check_positive_int("estimate_support: `oversample`", oversample)
     check_positive_int("estimate_support: `max_views`", max_views)
@@ -142,10 +149,10 @@ def estimate_support(
             f"estimate_support: `signal` must have shape {(len(viewpoints), *radar.signal_shape)}"
             f" for {len(viewpoints)} viewpoints, got {signal.shape}."
         )
+    check_finite(signal, "estimate_support: `signal`")
     rows = np.unique(np.linspace(0, len(viewpoints) - 1, min(max_views, len(viewpoints))).round())
     rows = rows.astype(np.int64)
-    fine = Scene.empty(grid.extent, grid.granularity / oversample)
-    points = fine.points()
+    points = finer_points(grid, oversample)
     operator = grt_operator(radar, viewpoints[rows], points)
     back = np.abs(np.asarray(gathered(operator.fn.adjoint(jnp.asarray(signal[rows])))))
     pooled = np.zeros(grid.shape, np.float64)

@@ -11,6 +11,7 @@ from conftest import random_complex
 import rift_jax as rj
 from rift_jax._solvers._common import as_complex, as_pair, realified
 from rift_jax._solvers.inr import _batches, _decay_mask, _optimizer, _step
+from rift_jax._support import mask_at
 
 
 @pytest.fixture(scope="module")
@@ -404,3 +405,33 @@ def test_coarse_to_fine_explains_what_the_coarse_grid_cannot(small_cube):
         rj.fit(scene, train, train_granularity=0.5, fine_epochs=80, **common)
     with pytest.raises(ValueError, match="takes no option"):
         rj.fit(scene, train, method="lsmr", granularity=1.0, train_granularity=0.5)
+
+
+def test_coarse_to_fine_on_a_support_after_patience_and_a_coarse_divergence(small_cube):
+    """Patience ends the coarse stage early and the fine one gets its own epochs; on a
+    support, only fine points inside it are trained; a divergence before the fine stage
+    keeps the coarse field and reports no fine one."""
+    radar, scene, train, _ = small_cube
+    support = np.zeros((5, 5, 5), bool)
+    support[1:4, 1:4, 1:4] = True  # the cube's voxels on the 1 m grid and a margin
+    common = dict(radar=radar, method="rift-n", granularity=1.0, progress=False)
+    result = rj.fit(
+        scene, train, support=support, train_granularity=0.5, epochs=400, fine_epochs=20,
+        patience=3, learning_rate=1e-1, **common,
+    )  # fmt: skip
+    switch = result.stats["fine_from_epoch"]
+    assert switch < 381 and result.stats["epochs_run"] <= switch - 1 + 20
+    inside = mask_at(support, result.scene, result.trained.points()).reshape(9, 9, 9)
+    trained = np.asarray(result.trained.reflectivity) != 0
+    assert trained.any() and not np.any(trained & ~inside)
+
+    def fragile(pred, target):  # NaN once the prediction's energy leaves the data's
+        drift = jnp.abs(jnp.sum(jnp.abs(pred) ** 2) / jnp.sum(jnp.abs(target) ** 2) - 1)
+        return rj.losses.robust_loss(pred, target) + jnp.where(drift > 1e-2, jnp.nan, 0.0)
+
+    with pytest.raises(rj.solvers.TrainingDiverged, match="epoch 2") as error:
+        rj.fit(
+            scene, train, train_granularity=0.5, epochs=10, loss=fragile, batch_views=None,
+            learning_rate=0.1, **common,
+        )  # fmt: skip
+    assert error.value.result.trained is None and "fine_from_epoch" not in error.value.result.stats

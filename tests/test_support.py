@@ -113,7 +113,7 @@ def _true_voxels(scene: rj.Scene, grid: rj.Scene) -> np.ndarray:
 def _box_scenes(extent: float) -> dict[str, rj.Scene]:
     """The paper's three shapes at ±2 m, poles between the inverse grid's points (as the
     parking lot's are), and random boxes (ρ from 0.25 to 1) from seeds the defaults were
-    not tuned on (they were chosen on the paper's scenes and seeds 0-9 at ±5 m)."""
+    not tuned on (they were chosen on the paper's scenes and seeds 0-3 at ±5 m)."""
     poles = [((x, y, 0.0), (0.2, 0.2, 2.2), 1.0) for x in (-1.0, 1.0) for y in (-1.0, 0.2)]
     scenes = {
         "cube": rj.scenes.cube(0.2, extent=extent, edge=1.2),

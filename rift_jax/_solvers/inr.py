@@ -67,7 +67,8 @@ class Recipe:
       spacings). The set is chosen from the field itself every `recheck_every` epochs (the
       first time after `recheck_every` epochs, or at once from an `init` field), and grows
       back wherever the field has risen since; each step's cost follows the active points.
-      The result is what was trained: the field on the last active set, zero elsewhere.
+      The result is what was trained: the best epoch's field on that epoch's active set,
+      zero elsewhere.
       None: train every point.
     - `recheck_every`: see `prune`.
     """
@@ -184,7 +185,7 @@ def rift(
     the relative residual ‖y − Aρ‖/‖y‖ accumulated over the epoch's minibatches (each at its
     step's parameters). ``stopped`` is ``"epochs"``, or ``"tolerance"`` when the recipe's
     `patience` ended the run early (``stats["epochs_run"]`` epochs).
-    ``stats["active_points"]`` counts the points trained in the last epoch.
+    ``stats["active_points"]`` counts the points the returned field was trained on.
 
     **Raises:** `TrainingDiverged` (a ValueError) if a loss or gradient becomes non-finite,
     naming the epoch; its ``.solution`` holds the best parameters so far.
@@ -212,14 +213,17 @@ def rift(
                 f"{fine_points.shape}."
             )
         fine_epochs = recipe.epochs // 2 if fine_epochs is None else fine_epochs
-        if not (isinstance(fine_epochs, int) and 1 <= fine_epochs < recipe.epochs):
+        whole = isinstance(fine_epochs, int | np.integer) and not isinstance(fine_epochs, bool)
+        if not (whole and 1 <= fine_epochs < recipe.epochs):
             raise ValueError(
                 f"{where}: `fine_epochs` must be an int in [1, {recipe.epochs - 1}] (the "
                 f"epochs are {recipe.epochs}), got {fine_epochs!r}."
             )
         switch = recipe.epochs - fine_epochs + 1
     elif fine_epochs is not None:
-        raise ValueError(f"{where}: `fine_epochs` needs `fine_points`.")
+        raise ValueError(
+            f"{where}: `fine_epochs` needs `fine_points` (from fit: `train_granularity`)."
+        )
     field = _initial_field(where, model, init, width, depth, extent, seed)
     if recipe.learning_rate is None:
         recipe = dataclasses.replace(recipe, learning_rate=field.model.learning_rate)
@@ -251,15 +255,18 @@ def rift(
 
     losses, residuals, seconds = [], [], []
     best_loss, best_params, best_epoch = math.inf, params, 0
+    # the best parameters' own training set: (candidates, active set, fine stage or not)
+    best_set = (candidates, active, False)
     reference, improved_epoch = math.inf, 0
 
     def result(stopped: str) -> Solution:
         best = eqx.combine(best_params, static)
         history = History(np.asarray(residuals), np.asarray(seconds), np.asarray(losses))
-        trained = np.ones(len(candidates.points), bool)
-        if active is not None:
+        trained_on, trained_active, fine = best_set
+        trained = np.ones(len(trained_on.points), bool)
+        if trained_active is not None:
             trained[:] = False
-            trained[active] = True
+            trained[trained_active] = True
         stats = {
             "model": name,
             "recipe": dataclasses.asdict(recipe),
@@ -271,9 +278,9 @@ def rift(
             "active_points": int(trained.sum()),
         }
         rho = best.render(coords)
-        if switch is not None:
+        if fine:  # the field trained on `fine_points`: `trained` marks which
             stats |= {"fine_from_epoch": switch, "active": trained}
-        elif active is not None:  # what was trained: the field on the active set, 0 elsewhere
+        elif trained_active is not None:  # what was trained: the field on its active set
             rho = jnp.where(jnp.asarray(trained), rho, 0)
         return Solution(rho, history, stopped, stats, field=best)
 
@@ -290,6 +297,7 @@ def rift(
                 active = None if recipe.prune is None else candidates.select(current, recipe.prune)
                 step_fn, step_coords = candidates.restricted(active)
                 stage_start = epoch
+                # the best is now the fine stage's (a divergence before it keeps the coarse one)
                 best_loss, reference, improved_epoch = math.inf, math.inf, epoch - 1
             elif (
                 recipe.prune is not None
@@ -353,6 +361,7 @@ def rift(
                 # the parameters that the epoch's last loss was measured at (with one step per
                 # epoch, exactly the epoch's loss): never ones whose own loss is unknown
                 best_loss, best_params, best_epoch = losses[-1], before, epoch
+                best_set = (candidates, active, switch is not None and epoch >= switch)
             bar.set_postfix(
                 loss=f"{losses[-1]:.4g}",
                 best=f"{best_loss:.4g}",
@@ -419,8 +428,8 @@ def _recipe(where: str, recipe, overrides) -> Recipe:
     if unknown := set(overrides) - fields:
         raise ValueError(
             f"{where}: unknown option(s) {sorted(unknown)}; the Recipe's fields are "
-            f"{sorted(fields)}, besides model, recipe, width, depth, init, extent, seed and "
-            "progress."
+            f"{sorted(fields)}, besides model, recipe, width, depth, init, extent, fine_points, "
+            "fine_epochs, seed and progress."
         )
     return dataclasses.replace(recipe, **overrides)
 
