@@ -435,3 +435,30 @@ def test_coarse_to_fine_on_a_support_after_patience_and_a_coarse_divergence(smal
             learning_rate=0.1, **common,
         )  # fmt: skip
     assert error.value.result.trained is None and "fine_from_epoch" not in error.value.result.stats
+
+
+def test_holdout_views_are_never_trained_on_and_choose_the_best(small_cube):
+    """With ``holdout``, training is the run on the other views exactly; the held-out
+    residual is recorded per epoch and picks the best epoch and the stop."""
+    radar, scene, train, _ = small_cube
+    common = dict(radar=radar, method="rift-n", granularity=0.5, epochs=12, progress=False)
+    held = rj.fit(scene, train, holdout=4, **common)
+    views = held.stats["holdout_views"]
+    assert views == [0, 10, 19, 29]
+    others = train[np.setdiff1d(np.arange(len(train)), views)]
+    data = rj.synthesize(scene, train, radar)  # the same normalisation as `held`'s
+    alone = rj.fit(
+        rj.RadarData(data.signal[np.setdiff1d(np.arange(30), views)], data.scale, others, radar),
+        others, extent=2.0, **common,
+    )  # fmt: skip
+    np.testing.assert_array_equal(held.history.loss, alone.history.loss)
+    residual = held.stats["holdout_residual"]
+    assert len(residual) == 12 and residual[-1] < residual[0]
+    assert held.stats["best_epoch"] == int(np.argmin(residual)) + 1
+    assert held.stats["best_loss"] == pytest.approx(min(residual))
+    stopped = rj.fit(scene, train, holdout=4, patience=1, min_improvement=0.5, **common)
+    assert stopped.stopped == "tolerance" and stopped.stats["epochs_run"] < 12
+    with pytest.raises(ValueError, match="holdout"):
+        rj.fit(scene, train, holdout=30, **common)
+    with pytest.raises(ValueError, match="holdout"):
+        rj.solvers.Recipe(holdout=-1)

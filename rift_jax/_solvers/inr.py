@@ -71,6 +71,10 @@ class Recipe:
       zero elsewhere.
       None: train every point.
     - `recheck_every`: see `prune`.
+    - `holdout`: hold out this many of the training viewpoints (evenly spread in their
+      order) and never train on them. Each epoch then measures their relative residual
+      ‖y − Aρ‖/‖y‖ (``stats["holdout_residual"]``), and the best parameters and `patience`
+      follow it instead of the training loss: early stopping on unseen data. 0: none.
     """
 
     loss: str | Callable = "robust"
@@ -86,6 +90,7 @@ class Recipe:
     min_improvement: float = 1e-3
     prune: float | None = None
     recheck_every: int = 10
+    holdout: int = 0
 
     def __post_init__(self):
         if not callable(self.loss) and self.loss not in LOSSES:
@@ -112,6 +117,10 @@ class Recipe:
         if self.prune is not None and not 0 < self.prune < 1:
             raise ValueError(f"Recipe: `prune` must be in (0, 1) or None, got {self.prune!r}.")
         check_positive_int("Recipe: `recheck_every`", self.recheck_every)
+        if isinstance(self.holdout, bool) or not (
+            isinstance(self.holdout, int | np.integer) and self.holdout >= 0
+        ):
+            raise ValueError(f"Recipe: `holdout` must be an int ≥ 0, got {self.holdout!r}.")
         if not 0 <= self.min_improvement < 1:
             raise ValueError(
                 f"Recipe: `min_improvement` must be in [0, 1), got {self.min_improvement!r}."
@@ -181,10 +190,12 @@ def rift(
     **Returns:** a `Solution` whose `field` is the trained `Field` of the epoch with the
     lowest mean training loss (the parameters before that epoch's last update: with one
     step per epoch, exactly those the loss was measured at; from the fine stage when there
-    is one) and whose `rho` is its rendering. The history has per epoch the mean loss and
-    the relative residual ‖y − Aρ‖/‖y‖ accumulated over the epoch's minibatches (each at its
-    step's parameters). ``stopped`` is ``"epochs"``, or ``"tolerance"`` when the recipe's
-    `patience` ended the run early (``stats["epochs_run"]`` epochs).
+    is one), or with a `holdout`, of the epoch whose end left the lowest held-out residual
+    (``stats["best_loss"]`` is then that residual); its `rho` is its rendering. The history
+    has per epoch the mean loss and the relative residual ‖y − Aρ‖/‖y‖ accumulated over the
+    epoch's minibatches (each at its step's parameters). ``stopped`` is ``"epochs"``, or
+    ``"tolerance"`` when the recipe's `patience` ended the run early
+    (``stats["epochs_run"]`` epochs).
     ``stats["active_points"]`` counts the points the returned field was trained on.
 
     **Raises:** `TrainingDiverged` (a ValueError) if a loss or gradient becomes non-finite,
@@ -224,15 +235,25 @@ def rift(
         raise ValueError(
             f"{where}: `fine_epochs` needs `fine_points` (from fit: `train_granularity`)."
         )
+    held = np.zeros(0, np.int64)
+    if recipe.holdout:
+        if recipe.holdout >= fn.n_views:
+            raise ValueError(
+                f"{where}: `holdout` ({recipe.holdout}) must leave viewpoints to train on; "
+                f"there are {fn.n_views}."
+            )
+        held = np.unique(np.linspace(0, fn.n_views - 1, recipe.holdout).round().astype(np.int64))
+    trained_views = np.setdiff1d(np.arange(fn.n_views), held)
     field = _initial_field(where, model, init, width, depth, extent, seed)
     if recipe.learning_rate is None:
         recipe = dataclasses.replace(recipe, learning_rate=field.model.learning_rate)
     if recipe.gain and init is None:
-        gain = float(_energy_gain(*replicated((field, fn, coords, signal))))
+        seen = (fn, signal) if not len(held) else (fn.subset(trained_views), signal[trained_views])
+        gain = float(_energy_gain(*replicated((field, seen[0], coords, seen[1]))))
         if np.isfinite(gain) and gain != 0:
             field = Field(field.model, extent, gain)
 
-    n_views = fn.n_views
+    n_views = len(trained_views)
     batch = n_views if recipe.batch_views is None else min(recipe.batch_views, n_views)
     steps = _steps(n_views, batch)
     spec = jax.tree.map(eqx.is_inexact_array, field)
@@ -243,6 +264,8 @@ def rift(
     opt_state = optimizer.init(params)
     params, opt_state, signal = replicated((params, opt_state, signal))
     energy = np.sum(np.abs(np.asarray(signal)) ** 2, axis=(1, 2, 3))
+    held_index = replicated(jnp.asarray(held)) if len(held) else None
+    holdout_residuals: list[float] = []
     rng = np.random.default_rng(seed)
     # the candidate points (the operator's, then `fine_points`) and the active ones among
     # them (None: all); the step sees only the active ones
@@ -277,6 +300,8 @@ def rift(
             "batch_views": batch,
             "active_points": int(trained.sum()),
         }
+        if len(held):
+            stats |= {"holdout_views": held.tolist(), "holdout_residual": holdout_residuals}
         rho = best.render(coords)
         if fine:  # the field trained on `fine_points`: `trained` marks which
             stats |= {"fine_from_epoch": switch, "active": trained}
@@ -313,7 +338,7 @@ def rift(
                     chosen = None  # no change: no recompilation
                 if chosen is not None:
                     step_fn, step_coords = candidates.restricted(active)
-            batches = _batches(rng, n_views, batch)
+            batches = trained_views[_batches(rng, n_views, batch)]
             indices = replicated(jnp.asarray(batches))
             step_losses, finite, step_residuals = [], [], []
             for k in range(steps):
@@ -353,14 +378,21 @@ def rift(
             losses.append(float(np.mean(step_losses)))
             residuals.append(math.sqrt(float(np.sum(step_residuals)) / energy[batches].sum()))
             seconds.append(time.perf_counter() - start)
-            if losses[-1] < (1 - recipe.min_improvement) * reference:
+            progress_measure, measured = losses[-1], before
+            if len(held):  # unseen views, at the parameters the epoch ended with
+                held_residual = float(
+                    _residual(params, static, step_fn, step_coords, signal, held_index)
+                )
+                holdout_residuals.append(held_residual)
+                progress_measure, measured = held_residual, params
+            if progress_measure < (1 - recipe.min_improvement) * reference:
                 # progress that counts for `patience`: measured from the last epoch that made
                 # such progress, so small steps cannot keep resetting the bar
-                reference, improved_epoch = losses[-1], epoch
-            if losses[-1] < best_loss:
-                # the parameters that the epoch's last loss was measured at (with one step per
-                # epoch, exactly the epoch's loss): never ones whose own loss is unknown
-                best_loss, best_params, best_epoch = losses[-1], before, epoch
+                reference, improved_epoch = progress_measure, epoch
+            if progress_measure < best_loss:
+                # the parameters that the measure was taken at (for the loss, with one step
+                # per epoch, exactly the epoch's): never ones whose own measure is unknown
+                best_loss, best_params, best_epoch = progress_measure, measured, epoch
                 best_set = (candidates, active, switch is not None and epoch >= switch)
             bar.set_postfix(
                 loss=f"{losses[-1]:.4g}",
@@ -505,6 +537,15 @@ def _energy_gain(field: Field, fn: GRT, coords, signal) -> Float[Array, ""]:
     that no ρ on this grid explains, such as the paper's two-grid protocol, make that gain
     ~0, and a zero prediction is where magnitude losses are flat.)"""
     return jnp.linalg.norm(signal) / jnp.linalg.norm(fn(field.render(coords)))
+
+
+@exact_jit
+def _residual(params, static, fn: GRT, coords, signal, index) -> Float[Array, ""]:
+    """‖y_b − A_b ρ‖/‖y_b‖ over the viewpoints ``index``."""
+    rho = eqx.combine(params, static).render(coords)
+    target = signal[index]
+    pred = fn.subset(index)(rho)
+    return jnp.linalg.norm(pred - target) / jnp.linalg.norm(target)
 
 
 @exact_jit
