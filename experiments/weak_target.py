@@ -105,6 +105,28 @@ SCALES = {
 }
 
 
+def budgets(cfg: Config) -> str:
+    """What each run may spend and when it stops, in words."""
+    ls = f"Kaczmarz {cfg.sweeps} sweeps"
+    if cfg.ls_tol:
+        ls = (
+            f"Kaczmarz at most {cfg.sweeps} sweeps, stopped when the residual stalls "
+            f"(tol {cfg.ls_tol:g})"
+        )
+    rift = f"{cfg.model} default recipe, {cfg.rift_steps} steps of 10 views"
+    if cfg.rift_patience:
+        rift = (
+            f"{cfg.model} default recipe, at most {cfg.rift_steps} steps of 10 views, stopped "
+            f"after {cfg.rift_patience} epochs without progress"
+        )
+    if cfg.rift_prune:
+        rift += (
+            f", trained where |ρ| ≥ {cfg.rift_prune:g}·max (an active set, re-chosen every "
+            f"{cfg.recheck_every} epochs)"
+        )
+    return f"{ls}; {rift}"
+
+
 def contrast(ratio: float) -> str:
     """The scene's name: the strong bar's reflectivity over the weak one's, e.g. ``"4:1"``."""
     return f"{1 / ratio:.3g}:1"
@@ -225,8 +247,7 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path, 
             f"Far field, radar at {cfg.distance:g} m; bars 0.72 × 2.4 × 0.48 m, 1.2 m gap; "
             f"forward {cfg.forward} m / inverse {cfg.inverse} m over ±{cfg.extent} m; "
             f"{cfg.n_azimuth} × {cfg.n_polar} viewpoints on [0.1π, 0.3π]; {cfg.n_train} "
-            f"training and {cfg.n_test} held-out views; Kaczmarz {cfg.sweeps} sweeps; "
-            f"{cfg.model} default recipe, {cfg.rift_steps} steps of 10 views. "
+            f"training and {cfg.n_test} held-out views; {budgets(cfg)}. "
             "p-RMSE in radians (random phase: 1.81); residual: ‖y − Aρ‖/‖y‖ on the training "
             "views. Profile: the mean of |ρ|/max|ρ| over the bars' y-z footprint, per x. "
             f"Resolved: the weaker bar's peak reaches {cfg.threshold} of the stronger's and "
