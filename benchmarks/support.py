@@ -39,7 +39,7 @@ import scipy.ndimage
 
 import rift_jax as rj
 from rift_jax._scenes import _scene_from_boxes
-from rift_jax._support import nearest_voxels
+from rift_jax._support import voxels_holding
 
 from ._timing import complex_matmul_rate, median_seconds
 
@@ -69,14 +69,6 @@ def random_boxes(seed: int, extent: float = 5.0) -> rj.Scene:
     return _scene_from_boxes(boxes, extent, 0.2)
 
 
-def true_voxels(scene: rj.Scene, grid: rj.Scene) -> np.ndarray:
-    """Every voxel of ``grid`` nearest to an occupied point of ``scene`` (both, on a tie)."""
-    mask = np.zeros(grid.shape, bool)
-    for index, inside in nearest_voxels(grid, scene.occupied()[0]):
-        mask[tuple(index[inside].T)] = True
-    return mask
-
-
 def coverage(radar, train, grid) -> dict:
     scenes = {name: getattr(rj.scenes, name)(0.2) for name in rj.scenes.__all__}
     scenes.pop("weak_target", None)
@@ -87,7 +79,7 @@ def coverage(radar, train, grid) -> dict:
         start = time.perf_counter()
         mask = rj.estimate_support(signal, train, grid, radar=radar)
         seconds = time.perf_counter() - start
-        truth = true_voxels(scene, grid)
+        truth = voxels_holding(grid, scene.occupied()[0])  # all nearest, on a tie
         out[name] = {"points": int(mask.sum()), "true": int(truth.sum())}
         out[name] |= {"lost": int(np.sum(truth & ~mask)), "seconds": seconds}
         print(

@@ -24,7 +24,7 @@ from ._operator import grt_operator
 from ._scenes import Scene
 from ._sharding import gathered
 from ._solvers import History, TrainingDiverged
-from ._support import as_mask, estimate_support, mask_at, nearest_voxels
+from ._support import as_mask, estimate_support, mask_at, voxels_holding
 from ._synthesis import RadarData, synthesize
 from ._validation import check_finite
 
@@ -263,13 +263,10 @@ def fit(
         if fine is not None and "active" in stats:  # the field where it was trained
             where = np.flatnonzero(keep)[stats.pop("active")]
             values = np.zeros(keep.size, np.complex64)
-            values[where] = np.asarray(field.render(fine.points()[where]))
+            values[where] = np.asarray(field.render(candidates[where]))
             trained = Scene(jnp.asarray(values.reshape(fine.shape)), extent, fine.granularity)
             # on the inverse grid too, ρ = 0 in voxels that hold no trained point
-            near = np.zeros(grid.shape, bool)
-            for index, inside in nearest_voxels(grid, fine.points()[where]):
-                near[tuple(index[inside].T)] = True
-            rho = np.where(near.ravel(), rho, 0)
+            rho = np.where(voxels_holding(grid, candidates[where]).ravel(), rho, 0)
         if mask is not None:
             kept = jnp.asarray(rho[mask.ravel()] / scale)  # the solver's units
             leak = _support_leak(full, operator, signal, kept, mask)

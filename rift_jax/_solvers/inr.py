@@ -318,7 +318,8 @@ def rift(
             epoch_start = time.perf_counter()
             current = eqx.combine(params, static)
             if epoch == switch:  # coarse to fine: same parameters and optimizer state
-                candidates = _Candidates(eqx.tree_at(lambda g: g.points, fn, split(fine_points)))
+                fine_fn = eqx.tree_at(lambda g: g.points, fn, split(fine_points))
+                candidates = _Candidates(fine_fn, fine_points)
                 active = None if recipe.prune is None else candidates.select(current, recipe.prune)
                 step_fn, step_coords = candidates.restricted(active)
                 stage_start = epoch
@@ -413,10 +414,7 @@ def rift(
 class _Candidates:
     """The points a RIFT stage may train (the GRT `fn`'s) and how to pick its active set."""
 
-    def __init__(self, fn: GRT, points: np.ndarray | None = None):
-        if points is None:
-            with jax.enable_x64(True):
-                points = np.asarray(to_float64(fn.points))
+    def __init__(self, fn: GRT, points: np.ndarray):  # points: fn's, in float64
         self.fn, self.points = fn, points
         self.coords = jnp.asarray(points, jnp.float32)
         self.tree = scipy.spatial.cKDTree(points)
