@@ -52,6 +52,81 @@ def rift_options(n_train: int, steps: int, batch_views: int = 10) -> dict:
     return {"epochs": epochs, "halve_every": epochs / 4, "batch_views": batch_views}
 
 
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """What each run of an experiment may spend, and when it stops early.
+
+    Kaczmarz runs at most ``sweeps`` sweeps and stops once its residual stalls by ``ls_tol``
+    (0: every sweep). RIFT runs about ``rift_steps`` optimizer steps of 10 views, stops after
+    ``rift_patience`` epochs without progress (None: never), and trains only where
+    |ρ| ≥ ``rift_prune``·max, re-chosen every ``recheck_every`` epochs (None: everywhere).
+    ``support`` restricts every method to a support (`rift_jax.fit`'s option; None: the
+    whole grid)."""
+
+    sweeps: int
+    rift_steps: int
+    ls_tol: float = 0.0
+    rift_prune: float | None = None
+    rift_patience: int | None = None
+    recheck_every: int = 10
+    support: str | None = None
+
+    def ls(self) -> dict:
+        """`fit` options of a Kaczmarz run."""
+        return {"iterations": self.sweeps, "tol": self.ls_tol} | self._support()
+
+    def rift(self, n_train: int) -> dict:
+        """`fit` options of a RIFT run from ``n_train`` views."""
+        options = rift_options(n_train, self.rift_steps) | self._support()
+        if self.rift_prune is not None:
+            options |= {"prune": self.rift_prune, "recheck_every": self.recheck_every}
+        if self.rift_patience is not None:
+            options |= {"patience": self.rift_patience}
+        return options
+
+    def _support(self) -> dict:
+        return {} if self.support is None else {"support": self.support}
+
+    def describe(self, model: str = "RIFT") -> str:
+        """The budgets in words, for a results page."""
+        ls = f"Kaczmarz {self.sweeps} sweep(s)"
+        if self.ls_tol:
+            ls = (
+                f"Kaczmarz at most {self.sweeps} sweeps, stopped when the residual stalls "
+                f"(tol {self.ls_tol:g})"
+            )
+        rift = f"{model} default recipe, {self.rift_steps} steps of 10 views per run"
+        if self.rift_patience:
+            rift = (
+                f"{model} default recipe, at most {self.rift_steps} steps of 10 views per "
+                f"run, stopped after {self.rift_patience} epochs without progress"
+            )
+        if self.rift_prune:
+            rift += (
+                f", trained where |ρ| ≥ {self.rift_prune:g}·max (an active set, re-chosen "
+                f"every {self.recheck_every} epochs)"
+            )
+        text = f"{ls}; {rift}"
+        if self.support == "auto":
+            text += (
+                '; every method on the support estimated from its training data (`support="auto"`)'
+            )
+        return text
+
+
+PAPER_STOPPING = {
+    "ls_tol": 1e-3,
+    "rift_prune": 0.05,
+    "rift_patience": 10,
+    "recheck_every": 2,
+    "support": "auto",
+}
+"""How the paper-scale scene studies skip what a scene does not need: every method on the
+support estimated from its data, RIFT on an active set, and each run stopped once
+converged. The weak target takes all but the support (its 36° aperture leaves the
+estimate 92-99 % of the grid: docs/solvers.md)."""
+
+
 def draw(pool: rj.Viewpoints, n_train: int, n_test: int, seed: int):
     """(train, test): one seeded test set shared by every run, and training sets drawn from
     the rest in one fixed order, so LS-100 ⊂ LS-200 ⊂ ... and all runs face the same test."""
@@ -229,6 +304,8 @@ def execute(
             "iterations": len(history),
             "seconds_per_iteration": seconds_per_iteration(result),
             "stopped": str(result.stopped),
+            "points": result.n_points,  # the operator's unknowns (the support's, if any)
+            "active_points": result.stats.get("active_points"),  # RIFT's final active set
         }
         results["rows"].append(row)
         results["wall_seconds"] += wall

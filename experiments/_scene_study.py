@@ -16,10 +16,10 @@ from ._output import write_atomic
 from ._runner import (
     METRIC_COLUMNS,
     MODEL_LABELS,
+    Budget,
     Run,
     environment_line,
     execute,
-    rift_options,
     run_cell,
     table,
 )
@@ -34,8 +34,8 @@ class Config:
     ls: tuple[int, ...]  # the LS-n runs (block Kaczmarz from n viewpoints)
     rift: tuple[int, ...]  # the RIFT(N)-n and RIFT(S)-n runs
     n_test: int  # held-out viewpoints for p-RMSE (paper: 100)
-    sweeps: int  # Kaczmarz sweeps (paper: 100)
-    rift_steps: int  # optimizer steps of 10 views per RIFT run, whatever its n
+    budget: Budget  # Kaczmarz sweeps (paper: 100); RIFT steps of 10 views per run, whatever
+    # its n; when each stops; the support
     models: tuple[str, ...] = ("rift-n", "rift-s")
 
 
@@ -43,12 +43,11 @@ def runs(cfg: Config) -> list[Run]:
     out = []
     for scene in cfg.scenes:
         for n in cfg.ls:
-            options = {"iterations": cfg.sweeps, "tol": 0.0}
-            out.append(Run(scene, f"LS-{n}", "kaczmarz", n, options))
+            out.append(Run(scene, f"LS-{n}", "kaczmarz", n, cfg.budget.ls()))
         for model in cfg.models:
             for n in cfg.rift:
                 label = f"{MODEL_LABELS[model]}-{n}"
-                out.append(Run(scene, label, model, n, rift_options(n, cfg.rift_steps)))
+                out.append(Run(scene, label, model, n, cfg.budget.rift(n)))
     return out
 
 
@@ -97,12 +96,23 @@ def _verdicts(rows: list[dict], scenes, cfg: Config) -> list[str]:
     return ["| scene | claim (m-SSIM) | ours | paper |", "|---|---|---|---|", *lines]
 
 
+def _points_cell(row: dict) -> str:
+    """The unknowns a run used: the grid's or its support's; for RIFT, the active set its
+    returned field was trained on as well."""
+    points = row.get("points")  # rows written before points were recorded have none
+    if points is None:
+        return "–"
+    active = row.get("active_points")
+    return f"{points:,}" if active is None else f"{points:,} ({active:,})"
+
+
 def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path, title: str) -> None:
     rows = results["rows"]
     columns = [
         ("scene", lambda r: r["scene"]),
         ("run", run_cell),
         *METRIC_COLUMNS,
+        ("points (RIFT: trained)", _points_cell),
         (
             "paper m-SSIM / m-COS / t-IoU / p-RMSE",
             lambda r: _paper.paper_row(r["scene"], r["run"]),
@@ -115,9 +125,8 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path, 
             f"Forward {cfg.forward} m / inverse {cfg.inverse} m over ±{cfg.extent} m (nested "
             f"grids); paper radar; training views drawn from the paper's 51 × 51 viewpoint "
             f"grid, {cfg.n_test} others held out for p-RMSE (radians, wrapped: a random phase "
-            f"scores π/√3 ≈ 1.81; the paper's ~0.015 is not comparable). Kaczmarz "
-            f"{cfg.sweeps} sweep(s); RIFT default recipe, {cfg.rift_steps} steps of 10 "
-            "views per run (the same compute for every n). s: fit plus evaluation, "
+            f"scores π/√3 ≈ 1.81; the paper's ~0.015 is not comparable). "
+            f"{cfg.budget.describe()} (the same compute for every n). s: fit plus evaluation, "
             "compilation included. † the paper marks the run as failed; ‡ our training "
             "diverged (scored on the parameters before it).",
             "",

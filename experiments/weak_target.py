@@ -53,11 +53,12 @@ from ._output import save_figure, write_atomic
 from ._runner import (
     METRIC_COLUMNS,
     MODEL_LABELS,
+    PAPER_STOPPING,
+    Budget,
     Run,
     command,
     environment_line,
     execute,
-    rift_options,
     run_cell,
     table,
 )
@@ -70,61 +71,29 @@ class Config:
     inverse: float  # reconstruction granularity (m)
     n_train: int  # viewpoints per reconstruction, LS and RIFT alike (paper: 500)
     n_test: int  # held-out viewpoints for p-RMSE (paper: 100)
-    sweeps: int  # Kaczmarz sweeps (paper: 100)
-    rift_steps: int  # RIFT optimizer steps (10 views each)
+    budget: Budget  # Kaczmarz sweeps (paper: 100), RIFT steps, and when each stops
     ratios: tuple[float, ...] = (1.0, 0.5, 1 / 3, 0.25)
     distance: float = 50.0  # radar distance (m), far field
     n_azimuth: int = 41
     n_polar: int = 21
     angle_range: tuple[float, float] = (0.1 * math.pi, 0.3 * math.pi)
     model: str = "rift-n"
-    ls_tol: float = 0.0  # Kaczmarz stops once its residual has stalled by this (0: every sweep)
-    rift_prune: float | None = None  # RIFT trains only where |ρ| ≥ this · max (an active set)
-    rift_patience: int | None = None  # RIFT stops after this many epochs without progress
-    recheck_every: int = 10  # epochs between RIFT's active-set checks
     threshold: float = 0.2  # t-IoU threshold; also the weaker bar's detection threshold
     dip: float = 0.25  # the dip between the bars, relative to the weaker peak, to resolve
 
 
 SCALES = {
-    "quick": Config(1.44, 0.24, 0.48, n_train=20, n_test=5, sweeps=1, rift_steps=4),
-    "default": Config(1.44, 0.12, 0.24, n_train=500, n_test=100, sweeps=2, rift_steps=300),
+    "quick": Config(1.44, 0.24, 0.48, n_train=20, n_test=5, budget=Budget(1, 4)),
+    "default": Config(1.44, 0.12, 0.24, n_train=500, n_test=100, budget=Budget(2, 300)),
     "paper": Config(
         3.0,
         0.12,
         0.24,
         n_train=500,
         n_test=100,
-        sweeps=100,
-        rift_steps=5000,
-        ls_tol=1e-3,
-        rift_prune=0.05,
-        rift_patience=10,
-        recheck_every=2,
+        budget=Budget(100, 5000, **(PAPER_STOPPING | {"support": None})),
     ),
 }
-
-
-def budgets(cfg: Config) -> str:
-    """What each run may spend and when it stops, in words."""
-    ls = f"Kaczmarz {cfg.sweeps} sweeps"
-    if cfg.ls_tol:
-        ls = (
-            f"Kaczmarz at most {cfg.sweeps} sweeps, stopped when the residual stalls "
-            f"(tol {cfg.ls_tol:g})"
-        )
-    rift = f"{cfg.model} default recipe, {cfg.rift_steps} steps of 10 views"
-    if cfg.rift_patience:
-        rift = (
-            f"{cfg.model} default recipe, at most {cfg.rift_steps} steps of 10 views, stopped "
-            f"after {cfg.rift_patience} epochs without progress"
-        )
-    if cfg.rift_prune:
-        rift += (
-            f", trained where |ρ| ≥ {cfg.rift_prune:g}·max (an active set, re-chosen every "
-            f"{cfg.recheck_every} epochs)"
-        )
-    return f"{ls}; {rift}"
 
 
 def contrast(ratio: float) -> str:
@@ -247,7 +216,8 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path, 
             f"Far field, radar at {cfg.distance:g} m; bars 0.72 × 2.4 × 0.48 m, 1.2 m gap; "
             f"forward {cfg.forward} m / inverse {cfg.inverse} m over ±{cfg.extent} m; "
             f"{cfg.n_azimuth} × {cfg.n_polar} viewpoints on [0.1π, 0.3π]; {cfg.n_train} "
-            f"training and {cfg.n_test} held-out views; {budgets(cfg)}. "
+            f"training and {cfg.n_test} held-out views; "
+            f"{cfg.budget.describe(MODEL_LABELS[cfg.model])}. "
             "p-RMSE in radians (random phase: 1.81); residual: ‖y − Aρ‖/‖y‖ on the training "
             "views. Profile: the mean of |ρ|/max|ρ| over the bars' y-z footprint, per x. "
             f"Resolved: the weaker bar's peak reaches {cfg.threshold} of the stronger's and "
@@ -333,12 +303,7 @@ def main(
         raise ValueError(f"weak_target: `ratios` {cfg.ratios} name the same contrast twice.")
     bars = {key: footprints(scene) for key, scene in scenes.items()}
     axis = rj.Scene.empty(cfg.extent, cfg.inverse).axis()
-    ls = {"iterations": cfg.sweeps, "tol": cfg.ls_tol}
-    rift = rift_options(cfg.n_train, cfg.rift_steps)
-    if cfg.rift_prune is not None:
-        rift |= {"prune": cfg.rift_prune, "recheck_every": cfg.recheck_every}
-    if cfg.rift_patience is not None:
-        rift |= {"patience": cfg.rift_patience}
+    ls, rift = cfg.budget.ls(), cfg.budget.rift(cfg.n_train)
     runs = []
     for key in scenes:
         runs.append(Run(key, f"LS-{cfg.n_train}", "kaczmarz", cfg.n_train, ls))

@@ -4,6 +4,7 @@ hand-made volumes."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -38,7 +39,7 @@ def test_quick_scale_writes_every_file(quick_run):
     assert not list(out.glob(".*.tmp")), "a temporary file was left behind"
     saved = json.loads((out / "results.json").read_text())
     assert saved["experiment"] == name and saved["scale"] == "quick"
-    assert saved["config"] == json.loads(json.dumps(vars(module.SCALES["quick"])))
+    assert saved["config"] == json.loads(json.dumps(dataclasses.asdict(module.SCALES["quick"])))
     assert {"rift_jax", "jax", "numpy", "python"} <= set(saved["versions"])
     assert len(saved["rows"]) == len(results["rows"]) > 0
     with np.load(out / "reconstructions.npz") as volumes:
