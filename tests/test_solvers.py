@@ -13,7 +13,7 @@ from rift_jax import solvers
 from rift_jax._solvers._common import as_complex, as_pair, realified
 
 RUNS = {
-    "kaczmarz": (solvers.kaczmarz, {"iterations": 60, "tol": 0.0}, 5e-3),
+    "kaczmarz": (solvers.kaczmarz, {"iterations": 150, "tol": 0.0}, 5e-3),
     "lsmr": (solvers.lsmr, {"iterations": 60, "tol": 0.0}, 1e-4),
     "gauss-newton": (solvers.gauss_newton, {"iterations": 3, "inner": 20, "tol": 0.0}, 1e-4),
     "fista": (solvers.fista, {"iterations": 150, "sparsity": 0.0, "tol": 0.0}, 1e-3),
@@ -58,7 +58,7 @@ def test_history(solutions, name):
 
 
 def test_history_lengths(solutions):
-    assert len(solutions["kaczmarz"].history) == 60  # sweeps
+    assert len(solutions["kaczmarz"].history) == 150  # sweeps
     assert len(solutions["lsmr"].history) == 6  # checks, every 10 LSMR steps
     assert len(solutions["gauss-newton"].history) == 3
 
@@ -162,3 +162,59 @@ def test_no_warnings_from_jaxopt_import():
         import rift_jax._solvers.sparse as sparse
 
         importlib.reload(sparse)
+
+
+@pytest.fixture(scope="module")
+def inconsistent(problem):
+    """The tiny problem's signal plus as much again that no scene on the grid explains
+    (random numbers): no ρ fits it, and a Kaczmarz block step fits mostly noise."""
+    operator, signal, _ = problem
+    noise = random_complex(np.random.default_rng(7), signal.size).reshape(signal.shape)
+    noise *= np.linalg.norm(signal) / np.linalg.norm(noise)
+    return operator, (signal + noise).astype(np.complex64)
+
+
+@pytest.mark.parametrize("name", RUNS)
+def test_returns_its_best_iterate_never_worse_than_zero(inconsistent, name):
+    """Every least-squares solver returns the iterate with the lowest residual in its
+    history, that residual is the returned ρ's own (measured here independently), and it is
+    below the zero image's 1."""
+    operator, signal = inconsistent
+    solve, options, _ = RUNS[name]
+    options = options | {"iterations": 12}
+    solution = solve(operator, signal, progress=False, **options)
+    direct = np.linalg.norm(signal - np.asarray(operator.mv(solution.rho)))
+    direct /= np.linalg.norm(signal)
+    best = solution.stats["best"]
+    assert best is not None
+    assert solution.history.residual[best] == pytest.approx(direct, rel=1e-3)
+    assert direct == pytest.approx(solution.history.residual.min(), rel=1e-3)
+    assert direct < 1.0
+
+
+def test_kaczmarz_relaxation_schedule(inconsistent):
+    """At λ = 1 a sweep over inconsistent data ends above the start's residual: the sweep is
+    undone and λ halved, so the residual of what is kept only goes down."""
+    operator, signal = inconsistent
+    solution = solvers.kaczmarz(operator, signal, iterations=8, relaxation=1.0, progress=False)
+    relaxations, undone = solution.stats["relaxations"], solution.stats["undone"]
+    assert undone, "λ = 1 was expected to overshoot on this data"
+    assert relaxations[0] == 1.0 and relaxations[-1] == 0.5 ** len(undone)
+    kept = [r for k, r in enumerate(solution.history.residual, 1) if k not in undone]
+    assert np.all(np.diff(kept) < 0)
+    for k in undone:  # an undone sweep did not improve on everything before it
+        assert solution.history.residual[k - 1] >= min([1.0, *solution.history.residual[: k - 1]])
+
+
+def test_fista_tracks_its_iterates_residual_exactly(problem):
+    """FISTA's recorded residuals, derived from its extrapolated points, are those of its
+    iterates: the returned iterate's is the independently measured one, at every budget."""
+    operator, signal, _ = problem
+    for iterations in (1, 2, 7):
+        solution = solvers.fista(
+            operator, signal, iterations=iterations, sparsity=0.1, tol=0.0, progress=False
+        )
+        direct = np.linalg.norm(signal - np.asarray(operator.mv(solution.rho)))
+        direct /= np.linalg.norm(signal)
+        assert len(solution.history) == iterations + 1  # the start and every iterate
+        assert solution.history.residual[solution.stats["best"]] == pytest.approx(direct, rel=1e-4)

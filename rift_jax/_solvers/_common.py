@@ -19,6 +19,7 @@ from jax.custom_derivatives import linear_call
 from jaxtyping import Array, Complex, Float
 
 from .._operator import GRT, GRTOperator
+from .._precision import exact_jit
 from .._sharding import gathered, replicated
 from .._validation import check_finite, check_positive_int
 from ._solution import History, Solution
@@ -88,3 +89,16 @@ def zero_signal(where: str, signal: Array, x0: Array):
         stacklevel=3,
     )
     return Solution(x0, History(np.zeros(0), np.zeros(0)), "zero signal")
+
+
+def start_residual(fn: GRT, signal: Array, x0: Array) -> float:
+    """The relative residual ‖y − Aρ₀‖/‖y‖ of a solver's start: 1 for ρ₀ = 0 (free),
+    otherwise one forward pass. `iterate` returns the start unless an iterate beats it."""
+    if not bool(jnp.any(x0 != 0)):
+        return 1.0
+    return float(_relative_residual(fn, signal, x0))
+
+
+@exact_jit
+def _relative_residual(fn: GRT, signal, x):
+    return relative(jnp.linalg.norm(signal - fn(x)), jnp.linalg.norm(signal))

@@ -45,7 +45,10 @@ class Solution:
     - `stopped`: why the run ended: ``"iterations"`` (budget spent), ``"tolerance"``
       (the residual stopped improving), ``"epochs"`` (INR: every epoch ran),
       ``"diverged at epoch N"`` (INR, in `TrainingDiverged.solution`) or ``"zero signal"``.
-    - `stats`: solver-specific numbers (e.g. the step size used).
+    - `stats`: solver-specific numbers (e.g. the step size used). The least-squares
+      solvers return their best iterate, the one with the lowest data residual, and
+      ``stats["best"]`` is its index in ``history`` (None: none beat the start, which is
+      returned).
     - `field`: the INR solver's continuous scene (a `rift_jax.Field`); None for the grid
       solvers.
     """
@@ -83,8 +86,17 @@ def iterate(
     tol: float,
     progress: bool,
     desc: str,
-) -> tuple[Any, History, str]:
-    """Call ``carry, residual = step(carry)`` up to ``iterations`` times.
+    image: Callable[[Any], Array],
+    start_residual: float = 1.0,
+) -> tuple[Array, History, str, dict]:
+    """Call ``carry, residual = step(carry)`` up to ``iterations`` times and return the best
+    iterate: ``(ρ, history, stopped, {"best": k})``.
+
+    ``residual`` must be the relative data residual of ``image(carry)``, the ρ that `step`
+    returned, so that the ρ returned here is the one with the lowest residual seen, the
+    start included (``start_residual``, 1 for ρ = 0): a least squares solver never ends
+    worse than where it began, however its residual bounces. ``history.residual[k]`` is the
+    returned ρ's residual; k is None when no iterate beat the start.
 
     Stops early when the best relative residual of the last three iterations is not lower
     than the best before them by a factor ``1 - tol``: the run has stagnated (three, not one,
@@ -94,6 +106,7 @@ def iterate(
     bar appears only for runs longer than two seconds.
     """
     residuals, seconds = [], []
+    best, best_residual, best_index = image(carry), start_residual, None
     stopped = "iterations"
     start = time.perf_counter()
     with tqdm(total=iterations, desc=desc, disable=not progress, delay=2.0, leave=False) as bar:
@@ -107,6 +120,8 @@ def iterate(
                     "iteration diverged (for FISTA, lower the step size)."
                 )
             residuals.append(residual)
+            if residual < best_residual:
+                best, best_residual, best_index = image(carry), residual, k
             bar.set_postfix(residual=f"{residual:.4g}", refresh=False)
             bar.update()
             if (
@@ -116,4 +131,5 @@ def iterate(
             ):
                 stopped = "tolerance"
                 break
-    return carry, History(np.asarray(residuals), np.asarray(seconds)), stopped
+    history = History(np.asarray(residuals), np.asarray(seconds))
+    return best, history, stopped, {"best": best_index}

@@ -13,7 +13,7 @@ from jaxtyping import Array, Complex
 from .._operator import GRT, GRTOperator
 from .._precision import Float64Pair, exact_jit
 from .._sharding import VOXELS, device_mesh, pad_leading
-from ._common import check_problem, relative, zero_signal
+from ._common import check_problem, relative, start_residual, zero_signal
 from ._solution import Solution, iterate
 
 
@@ -22,7 +22,7 @@ def kaczmarz(
     signal: Complex[Array, "n_views n_freq n_tx n_rx"],
     *,
     iterations: int = 100,
-    relaxation: float = 1.0,
+    relaxation: float = 0.25,
     tol: float = 0.0,
     seed: int = 0,
     x0: Complex[Array, " n_points"] | None = None,
@@ -42,6 +42,18 @@ def kaczmarz(
     exact projection needs an inner solve per block: A_b has 25,600 rows.) The update costs
     three one-viewpoint kernel calls; for 0 < λ < 2 it never increases the block's residual.
 
+    **Never worse than zero.** On data no image on the grid explains (noise, or the paper's
+    coarser inverse grid), each block's full step fits that block's misfit and undoes the
+    others: at λ = 1 the whole residual ends *above* the zero image's (1.05 on the cube at
+    0.3 / 0.6 m, 1.22 at the paper's grids), and smaller λ come closer to the least-squares
+    floor (0.97 at λ = 0.25, 0.956 at 0.05; LSMR's 0.955). So λ defaults to 0.25, and it is
+    a schedule: after each sweep the residual of the whole iterate is measured (one more
+    forward pass per viewpoint), and a sweep that does not lower it is undone and λ halved
+    (``stats["relaxations"]``: λ per sweep; ``stats["undone"]``: the sweeps undone,
+    counted from 1). The best iterate is returned, never one worse than the start. On
+    consistent data nothing is undone and λ stays (on the cube at
+    0.6 / 0.6 m, every λ from 0.1 to 1 reaches 1e-4 in two sweeps).
+
     **Both cores on one block:** the blocks are sequential, so the voxels are split over the
     devices instead (one per CPU core). Each device keeps its share of ρ and adds its partial
     signals with one `psum` of 25,600 numbers.
@@ -51,15 +63,16 @@ def kaczmarz(
     - `operator`: the `GRTOperator` from `rift_jax.grt_operator`.
     - `signal`: measured signals, (n_views, n_freq, n_tx, n_rx), rows of ``operator``.
     - `iterations`: sweeps.
-    - `relaxation`: λ in (0, 2).
+    - `relaxation`: the starting λ, in (0, 2); halved after each sweep that does not lower
+      the residual.
     - `tol`: stop early when the residual stagnates (see `Solution`); 0 runs every sweep.
     - `seed`: seeds the block orders.
     - `x0`: starting ρ (default 0), e.g. a previous run's result to resume it.
     - `progress`: show a progress bar on runs longer than two seconds.
 
-    **Returns:** a `Solution`. ``history.residual[k]`` is sqrt(Σ_b ‖r_b‖²)/‖y‖ over sweep k,
-    each block's residual measured before its update: free, and close to the residual at
-    the end of the sweep once the iterate changes little.
+    **Returns:** a `Solution` holding the iterate with the lowest residual.
+    ``history.residual[k]`` is ‖y − Aρ‖/‖y‖ of the iterate at the end of sweep k (an undone
+    sweep's too, so the history shows what was rejected).
     """
     signal, x = check_problem("kaczmarz", operator, signal, x0, iterations)
     if not 0 < relaxation < 2:
@@ -74,32 +87,48 @@ def kaczmarz(
     x = pad_leading(x, pad, "constant")
     norm = jnp.linalg.norm(signal)
     rng = np.random.default_rng(seed)
-    lam = jnp.float32(relaxation)
+    best = {"x": x, "residual": start_residual(fn, signal, x[:n_points])}
+    relaxations, undone = [], []
 
     def step(x):
+        # x is the best iterate so far: each sweep starts from it
         order = jnp.asarray(rng.permutation(fn.n_views))
-        x, squares = _sweep(fn, points, mask, x, signal, order, lam)
-        return x, relative(jnp.sqrt(squares), norm)
+        relaxations.append(relaxation * 0.5 ** len(undone))
+        lam = jnp.float32(relaxations[-1])  # traced: a new λ must not recompile
+        trial, squares = _sweep(fn, points, mask, x, signal, order, lam)
+        residual = float(relative(jnp.sqrt(squares), norm))
+        if residual < best["residual"]:
+            best.update(x=trial, residual=residual)
+        else:
+            undone.append(len(relaxations))
+        return best["x"], residual
 
-    x, history, stopped = iterate(
-        step, x, iterations=iterations, tol=tol, progress=progress, desc="kaczmarz"
+    x, history, stopped, stats = iterate(
+        step,
+        x,
+        iterations=iterations,
+        tol=tol,
+        progress=progress,
+        desc="kaczmarz",
+        image=lambda x: x[:n_points],
+        start_residual=best["residual"],
     )
-    return Solution(x[:n_points], history, stopped, {"relaxation": relaxation})
+    stats |= {"relaxations": relaxations, "undone": undone}
+    return Solution(x, history, stopped, stats)
 
 
 @exact_jit
 def _sweep(fn: GRT, points, mask, x, signal, order, lam):
-    """One sweep, ``-> (ρ, Σ_b ‖r_b‖²)``, with the voxels (points, mask, ρ) split over the
-    devices. Module-level and jitted on its arguments, so repeated runs of one problem size
-    compile once."""
+    """One sweep, ``-> (ρ, ‖y − Aρ‖²)`` at the sweep's end, with the voxels (points, mask,
+    ρ) split over the devices. Module-level and jitted on its arguments, so repeated runs of
+    one problem size compile once."""
     n_dev = jax.device_count()
 
     def body(points, mask, x, signal, order, lam):
         local = eqx.tree_at(lambda f: f.points, fn, points)
         total = (lambda v: jax.lax.psum(v, VOXELS)) if n_dev > 1 else (lambda v: v)
 
-        def block(k, carry):
-            x, squares = carry
+        def block(k, x):
             i = order[k]
             r = signal[i] - total(local.view(x, i))  # inside shard_map: views do not split
             g = jnp.where(mask, local.view_adjoint(r, i), 0)
@@ -107,9 +136,15 @@ def _sweep(fn: GRT, points, mask, x, signal, order, lam):
             gg = total(jnp.vdot(g, g).real)
             qq = jnp.vdot(q, q).real
             alpha = jnp.where(qq > 0, gg / jnp.where(qq > 0, qq, 1), 0)
-            return x + (lam * alpha) * g, squares + jnp.vdot(r, r).real
+            return x + (lam * alpha) * g
 
-        return jax.lax.fori_loop(0, order.shape[0], block, (x, jnp.zeros((), jnp.float32)))
+        x = jax.lax.fori_loop(0, order.shape[0], block, x)
+
+        def misfit(i, squares):
+            r = signal[i] - total(local.view(x, i))
+            return squares + jnp.vdot(r, r).real
+
+        return x, jax.lax.fori_loop(0, order.shape[0], misfit, jnp.zeros((), jnp.float32))
 
     if n_dev == 1:
         return body(points, mask, x, signal, order, lam)

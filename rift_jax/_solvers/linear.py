@@ -9,7 +9,7 @@ from jaxtyping import Array, Complex
 from .._operator import GRTOperator
 from .._precision import exact_jit
 from .._validation import check_positive_int
-from ._common import check_problem, relative, zero_signal
+from ._common import check_problem, relative, start_residual, zero_signal
 from ._solution import Solution, iterate
 
 
@@ -56,10 +56,17 @@ def lsmr(
         x, norm_r = _segment(operator, signal, x, steps)
         return x, relative(norm_r, norm)
 
-    x, history, stopped = iterate(
-        step, x, iterations=-(-iterations // steps), tol=tol, progress=progress, desc="lsmr"
+    x, history, stopped, stats = iterate(
+        step,
+        x,
+        iterations=-(-iterations // steps),
+        tol=tol,
+        progress=progress,
+        desc="lsmr",
+        image=lambda x: x,
+        start_residual=start_residual(operator.fn, signal, x),
     )
-    return Solution(x, history, stopped, {"check_every": steps})
+    return Solution(x, history, stopped, stats | {"check_every": steps})
 
 
 @exact_jit

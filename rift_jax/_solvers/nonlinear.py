@@ -17,7 +17,15 @@ from jaxtyping import Array, Complex
 from .._operator import GRTOperator
 from .._precision import exact_jit
 from .._validation import check_positive_int
-from ._common import as_complex, as_pair, check_problem, realified, relative, zero_signal
+from ._common import (
+    as_complex,
+    as_pair,
+    check_problem,
+    realified,
+    relative,
+    start_residual,
+    zero_signal,
+)
 from ._solution import Solution, iterate
 
 
@@ -65,10 +73,17 @@ def gauss_newton(
         y, state, r = _step(solver, residual, *carry)
         return (y, state), relative(r, norm)
 
-    (y, state), history, stopped = iterate(
-        step, step((y, state))[0], iterations=iterations, tol=tol, progress=progress, desc=where
+    rho, history, stopped, stats = iterate(
+        step,
+        step((y, state))[0],
+        iterations=iterations,
+        tol=tol,
+        progress=progress,
+        desc=where,
+        image=lambda carry: as_complex(carry[0]),
+        start_residual=start_residual(operator.fn, signal, x),
     )
-    return Solution(as_complex(y), history, stopped, {"inner": inner, "damped": damped})
+    return Solution(rho, history, stopped, stats | {"inner": inner, "damped": damped})
 
 
 def _problem(fn, signal, x, inner: int, damped: bool):

@@ -7,17 +7,19 @@ that it is no longer maintained, and that warning (only that one) is silenced he
 from __future__ import annotations
 
 import functools
+import time
 import warnings
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Complex
 
 from .._operator import GRTOperator
 from .._precision import exact_jit
 from .._validation import check_positive_int
-from ._common import as_complex, as_pair, check_problem, relative, zero_signal
-from ._solution import Solution, iterate
+from ._common import as_complex, as_pair, check_problem, relative, start_residual, zero_signal
+from ._solution import History, Solution, iterate
 
 with warnings.catch_warnings():
     warnings.filterwarnings("ignore", message=".*no longer maintained", category=DeprecationWarning)
@@ -60,8 +62,11 @@ def fista(
     - `tol`: stop when the residual stagnates (see `iterate`); 0 runs every step.
     - `seed`: seeds the power iteration's start.
 
-    **Returns:** a `Solution`; the residual is ‖y − Aρ‖/‖y‖ at the point where FISTA
-    evaluated the gradient (its extrapolated point), which is free.
+    **Returns:** a `Solution` holding the iterate with the lowest residual (FISTA's is not
+    monotone). ``history.residual[k]`` is ‖y − Aρ_k‖/‖y‖ of iterate k, exact and free: FISTA
+    evaluates the residual at its extrapolated point y_k = (1 + m)ρ_k − mρ_{k−1}, and the
+    residual is affine in ρ, so r(ρ_k) = (r(y_k) + m r(ρ_{k−1}))/(1 + m). Iterate k's
+    residual is known once step k + 1 has run; the last iterate's costs one forward pass.
     """
     where = "fista"
     signal, x = check_problem(where, operator, signal, x0, iterations)
@@ -81,15 +86,35 @@ def fista(
         pair = _prox_nonnegative(pair, 0.0)
     state = _init(solver, pair, lam, fn, signal)
 
-    def step(carry):
-        pair, state = _update(solver, *carry, lam, fn, signal)
-        return (pair, state), relative(state.aux, norm)
+    last = {}
 
-    (pair, _), history, stopped = iterate(
-        step, (pair, state), iterations=iterations, tol=tol, progress=progress, desc=where
+    def step(carry):
+        carry = _update(solver, *carry[:4], lam, fn, signal)
+        last["pair"] = carry[0]
+        return carry, relative(jnp.linalg.norm(carry[2]), norm)  # of carry[4], the iterate
+
+    # the carry: (ρ_{k+1}, state, r(ρ_k), t_k, ρ_k); before the first step t_{-1} = 1 and
+    # m = 0: FISTA's first extrapolated point is its start
+    carry = (pair, state, jnp.zeros_like(signal), jnp.ones((), jnp.float32), pair)
+    start = time.perf_counter()
+    rho, history, stopped, stats = iterate(
+        step,
+        carry,
+        iterations=iterations,
+        tol=tol,
+        progress=progress,
+        desc=where,
+        image=lambda carry: as_complex(carry[4]),
+        start_residual=float("inf"),  # the start's residual is the first step's record
     )
-    stats = {"lambda": float(lam), "lipschitz": lipschitz, "nonnegative": nonnegative}
-    return Solution(as_complex(pair), history, stopped, stats)
+    final = as_complex(last["pair"])
+    residual = start_residual(fn, signal, final)
+    if residual < history.residual.min():
+        rho, stats = final, {"best": len(history)}
+    seconds = np.append(history.seconds, time.perf_counter() - start)
+    history = History(np.append(history.residual, residual), seconds)
+    stats |= {"lambda": float(lam), "lipschitz": lipschitz, "nonnegative": nonnegative}
+    return Solution(rho, history, stopped, stats)
 
 
 @functools.cache
@@ -107,10 +132,10 @@ def _solver(stepsize: float, nonnegative: bool) -> jaxopt.ProximalGradient:
 
 
 def _value_and_grad(pair, fn, signal):
-    """((½‖Aρ − y‖², ‖Aρ − y‖), ∇ = Aᴴ(Aρ − y)) with the adjoint kernel."""
+    """((½‖Aρ − y‖², Aρ − y), ∇ = Aᴴ(Aρ − y)) with the adjoint kernel."""
     r = fn(as_complex(pair)) - signal
     value = 0.5 * jnp.sum(jnp.abs(r) ** 2)
-    return (value, jnp.linalg.norm(r)), as_pair(fn.adjoint(r))
+    return (value, r), as_pair(fn.adjoint(r))
 
 
 @exact_jit
@@ -119,8 +144,13 @@ def _init(solver, pair, lam, fn, signal):
 
 
 @exact_jit
-def _update(solver, pair, state, lam, fn, signal):
-    return solver.update(pair, state, lam, fn, signal)
+def _update(solver, pair, state, misfit, t, lam, fn, signal):
+    """One FISTA step from ρ_k (``pair``) with ``misfit`` = r(ρ_{k−1}) and ``t`` = t_{k−1}:
+    (ρ_{k+1}, state, r(ρ_k), t_k, ρ_k)."""
+    step = solver.update(pair, state, lam, fn, signal)
+    m = (t - 1) / state.t  # y_k = ρ_k + m (ρ_k − ρ_{k−1})
+    misfit = (step.state.aux + m * misfit) / (1 + m)  # aux: r(y_k)
+    return step.params, step.state, misfit, state.t, pair
 
 
 @exact_jit
