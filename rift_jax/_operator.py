@@ -265,6 +265,15 @@ def grt_operator(
         raise ValueError(
             f"grt_operator: `grid_points` must have shape (V, 3) with V ≥ 1, got {points.shape}."
         )
+    if (reach := float(np.max(np.linalg.norm(points, axis=1)))) >= radar.distance:
+        # every antenna stands at least `distance` from the centre, so this keeps the
+        # points off them, where the GRT's 1/R amplitudes diverge (a voxel at an antenna
+        # gave |S| ≈ 1e9 and swamped every other voxel)
+        raise ValueError(
+            f"grt_operator: `grid_points` reach {reach:.4g} m from the scene's centre, but the "
+            f"radar stands {radar.distance:g} m away (Radar.distance): every point must lie "
+            "closer to the centre than the radar."
+        )
     if chunk_size is not None:
         check_positive_int("grt_operator: `chunk_size`", chunk_size)
     fn = GRT(radar, split(viewpoints.azimuth), split(viewpoints.polar), split(points), chunk_size)

@@ -49,6 +49,28 @@ def grid_points(extent: float, granularity: float) -> Float[np.ndarray, "n_point
     return np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
+def shared_fraction(coarse: tuple[float, float], fine: tuple[float, float]) -> float:
+    """The fraction of the points of grid ``coarse`` = (extent, granularity) that are also
+    points of grid ``fine``: 1 when the grids nest, 0 when they share none (e.g. a 20-point
+    axis and its 2× coarser one: centred grids of even size sit at half-integer multiples
+    of their spacing)."""
+    axis, within = grid_axis(*coarse), grid_axis(*fine)
+    tol = 1e-6 * min(coarse[1], fine[1])
+    shared = np.min(np.abs(axis[:, None] - within[None, :]), axis=1) <= tol
+    return float(shared.mean() ** 3)
+
+
+def nesting_granularities(extent: float, granularity: float, most: int = 8) -> list[float]:
+    """The granularities c · ``granularity``, c = 2 .. ``most``, whose grids over ±``extent``
+    nest in the grid of ``granularity``: the inverse grids to offer when data comes from it."""
+    return [
+        c * granularity
+        for c in range(2, most + 1)
+        if c * granularity <= extent
+        and shared_fraction((extent, c * granularity), (extent, granularity)) == 1.0
+    ]
+
+
 class Scene(eqx.Module):
     """Complex reflectivity ρ on a cubic grid centred at the origin.
 

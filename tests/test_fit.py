@@ -1,5 +1,7 @@
 """`rift_jax.fit` end to end: the Scene path, the bring-your-own-data path, FitResult."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -91,3 +93,19 @@ def test_bad_input(small_cube):
         rj.fit(scene, [0.1, 0.2])
     with pytest.raises(ValueError, match="`snr_db` applies to a Scene"):
         rj.fit(signal, train, snr_db=10.0, **grid)
+
+
+def test_warns_when_the_inverse_grid_does_not_nest():
+    """A 20³ scene over ±2 m (points at half-integer multiples of 4/19 m) and its default 2×
+    inverse grid share no point: fit says so, naming both grids; 21³ nests and is quiet."""
+    radar = rj.Radar(n_frequencies=4, n_tx=2, n_rx=2)
+    views = rj.Viewpoints.grid(3, 2)
+    even = rj.Scene.from_array(np.ones((20, 20, 20), np.complex64), 2.0)
+    with pytest.warns(rj.GridWarning, match=r"shares 0% of its points.*20 points per axis"):
+        rj.fit(even, views, radar=radar, method="lsmr", iterations=1, progress=False)
+    odd = rj.Scene.from_array(np.ones((21, 21, 21), np.complex64), 2.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rj.GridWarning)
+        rj.fit(odd, views, radar=radar, method="lsmr", iterations=1, progress=False)
+    # of c = 2..8 (centred grids: c odd nests only with an even number of points): c = 5
+    assert rj._scenes.nesting_granularities(2.0, 4 / 19) == pytest.approx([5 * 4 / 19])

@@ -20,7 +20,9 @@ def setup(rng, distance, n_points=600, half_width=5.0):
     return radar, points, rho, tx, rx
 
 
-@pytest.mark.parametrize("distance, half_width", [(10.0, 5.0), (50.0, 3.0)])
+@pytest.mark.parametrize(
+    "distance, half_width", [(10.0, 5.0), (50.0, 3.0), (100.0, 5.0), (1000.0, 5.0)]
+)
 @pytest.mark.parametrize("near_field", [True, False])
 def test_forward_float32_matches_float64_reference(rng, distance, half_width, near_field):
     radar, points, rho, tx, rx = setup(rng, distance, half_width=half_width)

@@ -23,7 +23,7 @@ def kaczmarz(
     *,
     iterations: int = 100,
     relaxation: float = 0.25,
-    tol: float = 0.0,
+    tol: float = 1e-3,
     seed: int = 0,
     x0: Complex[Array, " n_points"] | None = None,
     progress: bool = True,
@@ -65,7 +65,8 @@ def kaczmarz(
     - `iterations`: sweeps.
     - `relaxation`: the starting λ, in (0, 2); halved after each sweep that does not lower
       the residual.
-    - `tol`: stop early when the residual stagnates (see `Solution`); 0 runs every sweep.
+    - `tol`: stop once the residual stagnates (see `iterate`): by default the run goes on
+      until converged, at most ``iterations`` sweeps; 0 runs every sweep.
     - `seed`: seeds the block orders.
     - `x0`: starting ρ (default 0), e.g. a previous run's result to resume it.
     - `progress`: show a progress bar on runs longer than two seconds.
