@@ -41,6 +41,7 @@ class Run:
     method: str  # a `rift_jax.fit` method
     n_train: int
     options: Mapping = dataclasses.field(default_factory=dict)  # passed to `fit`
+    seed: int | None = None  # `fit`'s seed (the INR's start, the noise); None: the experiment's
 
 
 def rift_options(n_train: int, steps: int, batch_views: int = 10) -> dict:
@@ -290,7 +291,7 @@ def execute(
             radar=radar,
             method=run.method,
             granularity=inverse,
-            seed=seed,
+            seed=seed if run.seed is None else run.seed,
             progress=progress,
             options=dict(run.options),
         )
@@ -298,6 +299,7 @@ def execute(
         history = result.history
         row = {"scene": run.scene, "run": run.label, "method": run.method}
         row |= {"n_train": run.n_train, "options": dict(run.options)} | metrics
+        row["seed"] = seed if run.seed is None else run.seed
         row |= {
             "fit_seconds": result.seconds,
             "wall_seconds": wall,  # fit + evaluation (test signals of truth and prediction)

@@ -264,3 +264,55 @@ def weak_target(
     offset = gap / 2 + size[0] / 2
     boxes = [((-offset, 0.0, 0.0), size, 1.0), ((offset, 0.0, 0.0), size, float(ratio))]
     return _scene_from_boxes(boxes, extent, granularity)
+
+
+# --- Scenes the paper never used --------------------------------------------------------
+
+
+PRIMITIVES = ("box", "ball", "pole", "plate")
+
+
+def random_primitives(
+    seed: int, granularity: float = 0.2, *, extent: float = 5.0, count: tuple[int, int] = (3, 7)
+) -> Scene:
+    """A scene of ``count`` (at least, at most) random primitives, for testing on scenes
+    nothing was tuned on: boxes (0.4-2 m sides), balls (0.3-1.2 m radius), thin vertical
+    poles and thin horizontal plates (one to two ``granularity`` thick), at random positions
+    inside ±0.7·``extent`` (so they fit), each with a reflectivity magnitude in [0.25, 1]
+    and, for half of them, a random phase. Later primitives overwrite earlier ones.
+    The same seed gives the same scene at every granularity (up to sampling)."""
+    if not isinstance(seed, int | np.integer) or seed < 0:
+        raise ValueError(f"random_primitives: `seed` must be an integer ≥ 0, got {seed!r}.")
+    if not (len(count) == 2 and 1 <= count[0] <= count[1]):
+        raise ValueError(
+            f"random_primitives: `count` must be (least, most) with 1 ≤ least ≤ most, got "
+            f"{count!r}."
+        )
+    rng = np.random.default_rng(seed)
+    axis = grid_axis(extent, granularity)
+    x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
+    rho = np.zeros(x.shape, np.complex64)
+    reach = 0.7 * extent
+    thin = max(granularity, 0.2)  # poles and plates hold at least one plane of points
+    for _ in range(rng.integers(count[0], count[1] + 1)):
+        kind = PRIMITIVES[rng.integers(len(PRIMITIVES))]
+        centre = rng.uniform(-reach, reach, 3)
+        value = rng.uniform(0.25, 1.0)
+        if rng.random() < 0.5:
+            value = value * np.exp(1j * rng.uniform(-np.pi, np.pi))
+        if kind == "ball":
+            radius = rng.uniform(0.3, 1.2)
+            inside = (x - centre[0]) ** 2 + (y - centre[1]) ** 2 + (z - centre[2]) ** 2
+            inside = inside <= (radius + _TOL) ** 2
+        else:
+            size = {
+                "box": rng.uniform(0.4, 2.0, 3),
+                "pole": np.array([thin, thin, rng.uniform(1.0, 2.5)]),
+                "plate": np.array([*rng.uniform(1.0, 2.5, 2), thin]),
+            }[kind]
+            inside = np.ones(x.shape, bool)
+            for coord, c, half in zip((x, y, z), centre, size / 2, strict=True):
+                inside &= np.abs(coord - c) <= half + _TOL
+        rho[inside] = value
+    return Scene(jnp.asarray(rho), float(extent), float(granularity))
+

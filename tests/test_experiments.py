@@ -12,14 +12,16 @@ import numpy as np
 import pytest
 
 import rift_jax as rj
-from experiments import _runner, complex_scenes, simple_scenes, weak_target
+from experiments import _runner, complex_scenes, simple_scenes, stability, weak_target
 from experiments._output import write_atomic
 
-FILES = ("results.json", "results.md", "reconstructions.npz", "training.png")
+FILES = ("results.json", "results.md", "reconstructions.npz")
+MIPS = ("reconstructions_xy.png", "reconstructions_xz.png", "training.png")
 EXPERIMENTS = {
-    "weak_target": (weak_target, ("weak_target.png", "profiles.png")),
-    "simple_scenes": (simple_scenes, ("reconstructions_xy.png", "reconstructions_xz.png")),
-    "complex_scenes": (complex_scenes, ("reconstructions_xy.png", "reconstructions_xz.png")),
+    "weak_target": (weak_target, ("weak_target.png", "profiles.png", "training.png")),
+    "simple_scenes": (simple_scenes, MIPS),
+    "complex_scenes": (complex_scenes, MIPS),
+    "stability": (stability, ("stability.png",)),
 }
 
 
@@ -65,7 +67,7 @@ def test_quick_scale_numbers_are_finite_and_in_range(quick_run):
             assert 0 <= row["weak_peak"] <= 1 and 0 <= row["strong_peak"] <= 1
             assert row["resolved"] == (row["weak_detected"] and row["dip"] >= 0.25)
             assert f"{row['scene']}**, {row['run']}: " in text
-    else:
+    elif name != "stability":
         scene = results["rows"][0]["scene"]
         assert f"| {scene} | RIFT(N)-10 beats LS-10 | " in text
 
@@ -161,3 +163,23 @@ def test_write_atomic_leaves_the_old_file_when_writing_fails(tmp_path):
         write_atomic(path, object())
     assert path.read_text() == "old"
     assert [p.name for p in tmp_path.iterdir()] == ["a.json"]
+
+
+def test_stability_counts_failures(quick_run):
+    """The stability study's verdicts: a non-finite metric or an m-SSIM under half its
+    cell's median fails a run, and results.json carries the count as an integer."""
+    name, _, out, results, _ = quick_run
+    if name != "stability":
+        pytest.skip("the stability study's own contract")
+    saved = json.loads((out / "results.json").read_text())
+    assert isinstance(saved["failures"], int)
+    assert saved["failures"] == sum(bool(r["failed"]) for r in saved["rows"])
+    assert (
+        f"Failures: {saved['failures']} of {len(saved['rows'])}" in (out / "results.md").read_text()
+    )
+    row = {"scene": "s", "options": {}, "m_cos": 0.5, "t_iou": 0.5, "p_rmse": 1.0, "residual": 1}
+    rows = [row | {"m_ssim": v, "method": "m"} for v in (0.8, 0.7, 0.3, 0.9)]
+    rows.append(row | {"m_ssim": 0.8, "method": "m", "residual": float("nan")})
+    verdicts = [r["failed"] for r in stability.judge(rows)]
+    assert verdicts[:2] == [None, None] and verdicts[3] is None
+    assert "half the median 0.800" in verdicts[2] and verdicts[4] == "non-finite metric"
