@@ -111,3 +111,25 @@ def test_resample_linear_field_and_anti_aliasing():
     sharp = np.abs(np.asarray(cube.resample(0.4, anti_aliasing=False).reflectivity))
     assert set(np.unique(sharp)) <= {0.0, 1.0}
     assert ((smooth > 0.01) & (smooth < 0.99)).any()
+
+
+def test_random_primitives_are_seeded_varied_and_checked():
+    """The same seed gives the same scene; seeds differ; reflectivities lie in [0.25, 1] in
+    magnitude, some complex; objects stay inside the grid; bad arguments are refused."""
+    a = np.asarray(rj.scenes.random_primitives(3, 0.4).reflectivity)
+    assert np.array_equal(a, np.asarray(rj.scenes.random_primitives(3, 0.4).reflectivity))
+    b = np.asarray(rj.scenes.random_primitives(4, 0.4).reflectivity)
+    assert not np.array_equal(a, b)
+    values = np.concatenate(
+        [np.asarray(rj.scenes.random_primitives(s, 0.4).reflectivity).ravel() for s in range(6)]
+    )
+    occupied = values[values != 0]
+    assert occupied.size > 0
+    assert np.all((np.abs(occupied) >= 0.25 - 1e-6) & (np.abs(occupied) <= 1 + 1e-6))
+    assert np.any(np.abs(occupied.imag) > 1e-3) and np.any(occupied.imag == 0)
+    for face in (a[0], a[-1], a[:, 0], a[:, -1], a[:, :, 0], a[:, :, -1]):
+        assert not np.any(face)  # inside ±0.7·extent, clear of the faces
+    with pytest.raises(ValueError, match="seed"):
+        rj.scenes.random_primitives(-1)
+    with pytest.raises(ValueError, match="count"):
+        rj.scenes.random_primitives(0, count=(3, 2))
