@@ -8,8 +8,9 @@ The cube (edge 2 m) synthesised at 0.3 m over ±2.4 m and reconstructed on the n
 0.6 m grid from 100 views of the paper's radar (the simple scenes' default protocol), and
 the same cube synthesised on the 0.6 m grid itself (consistent data). Fixed λ: one-sweep
 runs chained through ``x0`` (a sweep that raises the residual is undone, so λ = 1 on
-inconsistent data stays at the zero image's 1.0; its raw sweep reached 1.04); the residuals are measured independently here
-(‖y − Aρ‖/‖y‖ for each sweep's returned ρ), not read from the solver's history.
+inconsistent data stays at the zero image's 1.0; its raw sweep reached 1.04); the
+residuals are measured independently here (‖y − Aρ‖/‖y‖ for each sweep's returned ρ), not
+read from the solver's history.
 """
 
 from __future__ import annotations

@@ -283,6 +283,7 @@ def execute(
         if any(r["scene"] == run.scene and r["run"] == run.label for r in results["rows"]):
             continue
         train, test = draw(pool, run.n_train, n_test, seed)
+        run_seed = seed if run.seed is None else run.seed
         start = time.perf_counter()
         result, metrics = fit_and_evaluate(
             scenes[run.scene],
@@ -291,7 +292,7 @@ def execute(
             radar=radar,
             method=run.method,
             granularity=inverse,
-            seed=seed if run.seed is None else run.seed,
+            seed=run_seed,
             progress=progress,
             options=dict(run.options),
         )
@@ -299,7 +300,7 @@ def execute(
         history = result.history
         row = {"scene": run.scene, "run": run.label, "method": run.method}
         row |= {"n_train": run.n_train, "options": dict(run.options)} | metrics
-        row["seed"] = seed if run.seed is None else run.seed
+        row["seed"] = run_seed
         row |= {
             "fit_seconds": result.seconds,
             "wall_seconds": wall,  # fit + evaluation (test signals of truth and prediction)

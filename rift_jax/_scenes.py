@@ -171,24 +171,38 @@ class Scene(eqx.Module):
 # --- The paper's scenes -----------------------------------------------------------------
 
 
+def _coordinates(extent: float, granularity: float) -> tuple[np.ndarray, ...]:
+    """(x, y, z) of every grid point, each (n, n, n)."""
+    return np.meshgrid(*(grid_axis(extent, granularity),) * 3, indexing="ij")
+
+
+def _box(xyz, centre, size) -> np.ndarray:
+    """The grid points inside the axis-aligned box (boundaries inclusive)."""
+    inside = np.ones(xyz[0].shape, bool)
+    for coord, c, s in zip(xyz, centre, size, strict=True):
+        inside &= np.abs(coord - c) <= s / 2 + _TOL
+    return inside
+
+
+def _ball(xyz, centre, radius: float) -> np.ndarray:
+    """The grid points inside the ball (boundary inclusive)."""
+    squares = sum((coord - c) ** 2 for coord, c in zip(xyz, centre, strict=True))
+    return squares <= (radius + _TOL) ** 2
+
+
 def _scene_from_boxes(boxes, extent: float, granularity: float) -> Scene:
     """Union of axis-aligned boxes ``(centre, size, value)``; later boxes overwrite earlier."""
-    x, y, z = np.meshgrid(*(grid_axis(extent, granularity),) * 3, indexing="ij")
-    rho = np.zeros(x.shape, np.complex64)
+    xyz = _coordinates(extent, granularity)
+    rho = np.zeros(xyz[0].shape, np.complex64)
     for centre, size, value in boxes:
-        inside = np.ones(x.shape, bool)
-        for coord, c, s in zip((x, y, z), centre, size, strict=True):
-            inside &= np.abs(coord - c) <= s / 2 + _TOL
-        rho[inside] = value
+        rho[_box(xyz, centre, size)] = value
     return Scene(jnp.asarray(rho), float(extent), float(granularity))
 
 
 def sphere(granularity: float = 0.2, *, extent: float = 5.0, radius: float = 2.0) -> Scene:
     """Solid sphere of ``radius`` (paper: 2 m) centred at the origin, ρ = 1.
     At 0.2 m: 4,169 occupied voxels."""
-    axis = grid_axis(extent, granularity)
-    x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
-    rho = (x**2 + y**2 + z**2 <= (radius + _TOL) ** 2).astype(np.complex64)
+    rho = _ball(_coordinates(extent, granularity), (0, 0, 0), radius).astype(np.complex64)
     return Scene(jnp.asarray(rho), float(extent), float(granularity))
 
 
@@ -203,8 +217,7 @@ def pyramid(
     """Solid square pyramid (the paper's "tetrahedron"): ``base × base`` square at
     z = -height/2, apex at z = +height/2 (bounding box centred at the origin; the paper
     does not place it), ρ = 1."""
-    axis = grid_axis(extent, granularity)
-    x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
+    x, y, z = _coordinates(extent, granularity)
     half = (base / 2) * (height / 2 - z) / height  # half-width of the cross-section at z
     inside = (np.abs(z) <= height / 2 + _TOL) & (np.maximum(np.abs(x), np.abs(y)) <= half + _TOL)
     return Scene(jnp.asarray(inside.astype(np.complex64)), float(extent), float(granularity))
@@ -289,9 +302,8 @@ def random_primitives(
             f"{count!r}."
         )
     rng = np.random.default_rng(seed)
-    axis = grid_axis(extent, granularity)
-    x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
-    rho = np.zeros(x.shape, np.complex64)
+    xyz = _coordinates(extent, granularity)
+    rho = np.zeros(xyz[0].shape, np.complex64)
     reach = 0.7 * extent
     thin = max(granularity, 0.2)  # poles and plates hold at least one plane of points
     for _ in range(rng.integers(count[0], count[1] + 1)):
@@ -301,18 +313,12 @@ def random_primitives(
         if rng.random() < 0.5:
             value = value * np.exp(1j * rng.uniform(-np.pi, np.pi))
         if kind == "ball":
-            radius = rng.uniform(0.3, 1.2)
-            inside = (x - centre[0]) ** 2 + (y - centre[1]) ** 2 + (z - centre[2]) ** 2
-            inside = inside <= (radius + _TOL) ** 2
-        else:
-            size = {
-                "box": rng.uniform(0.4, 2.0, 3),
-                "pole": np.array([thin, thin, rng.uniform(1.0, 2.5)]),
-                "plate": np.array([*rng.uniform(1.0, 2.5, 2), thin]),
-            }[kind]
-            inside = np.ones(x.shape, bool)
-            for coord, c, half in zip((x, y, z), centre, size / 2, strict=True):
-                inside &= np.abs(coord - c) <= half + _TOL
+            inside = _ball(xyz, centre, rng.uniform(0.3, 1.2))
+        elif kind == "box":
+            inside = _box(xyz, centre, rng.uniform(0.4, 2.0, 3))
+        elif kind == "pole":
+            inside = _box(xyz, centre, (thin, thin, rng.uniform(1.0, 2.5)))
+        else:  # plate
+            inside = _box(xyz, centre, (*rng.uniform(1.0, 2.5, 2), thin))
         rho[inside] = value
     return Scene(jnp.asarray(rho), float(extent), float(granularity))
-

@@ -91,12 +91,12 @@ def zero_signal(where: str, signal: Array, x0: Array):
     return Solution(x0, History(np.zeros(0), np.zeros(0)), "zero signal")
 
 
-def start_residual(fn: GRT, signal: Array, x0: Array) -> float:
-    """The relative residual ‖y − Aρ₀‖/‖y‖ of a solver's start: 1 for ρ₀ = 0 (free),
-    otherwise one forward pass. `iterate` returns the start unless an iterate beats it."""
-    if not bool(jnp.any(x0 != 0)):
+def residual_of(fn: GRT, signal: Array, rho: Array) -> float:
+    """The relative residual ‖y − Aρ‖/‖y‖: 1 for ρ = 0 (free, e.g. a solver's usual
+    start), otherwise one forward pass."""
+    if not bool(jnp.any(rho != 0)):
         return 1.0
-    return float(_relative_residual(fn, signal, x0))
+    return float(_relative_residual(fn, signal, rho))
 
 
 @exact_jit

@@ -13,7 +13,7 @@ from jaxtyping import Array, Complex
 from .._operator import GRT, GRTOperator
 from .._precision import Float64Pair, exact_jit
 from .._sharding import VOXELS, device_mesh, pad_leading
-from ._common import check_problem, relative, start_residual, zero_signal
+from ._common import check_problem, relative, residual_of, zero_signal
 from ._solution import Solution, iterate
 
 
@@ -51,8 +51,8 @@ def kaczmarz(
     forward pass per viewpoint), and a sweep that does not lower it is undone and λ halved
     (``stats["relaxations"]``: λ per sweep; ``stats["undone"]``: the sweeps undone,
     counted from 1). The best iterate is returned, never one worse than the start. On
-    consistent data nothing is undone and λ stays (on the cube at
-    0.6 / 0.6 m, every λ from 0.1 to 1 reaches 1e-4 in two sweeps).
+    consistent data nothing is undone and λ stays (on the cube at 0.6 / 0.6 m, every λ
+    from 0.1 to 1 reaches 1e-4 in two sweeps).
 
     **Both cores on one block:** the blocks are sequential, so the voxels are split over the
     devices instead (one per CPU core). Each device keeps its share of ρ and adds its partial
@@ -88,7 +88,7 @@ def kaczmarz(
     x = pad_leading(x, pad, "constant")
     norm = jnp.linalg.norm(signal)
     rng = np.random.default_rng(seed)
-    best = {"x": x, "residual": start_residual(fn, signal, x[:n_points])}
+    best = {"x": x, "residual": residual_of(fn, signal, x[:n_points])}
     relaxations, undone = [], []
 
     def step(x):

@@ -9,7 +9,7 @@ from jaxtyping import Array, Complex
 from .._operator import GRTOperator
 from .._precision import exact_jit
 from .._validation import check_positive_int
-from ._common import check_problem, relative, start_residual, zero_signal
+from ._common import check_problem, relative, residual_of, zero_signal
 from ._solution import Solution, iterate
 
 
@@ -64,7 +64,7 @@ def lsmr(
         progress=progress,
         desc="lsmr",
         image=lambda x: x,
-        start_residual=start_residual(operator.fn, signal, x),
+        start_residual=residual_of(operator.fn, signal, x),
     )
     return Solution(x, history, stopped, stats | {"check_every": steps})
 

@@ -23,7 +23,7 @@ from ._common import (
     check_problem,
     realified,
     relative,
-    start_residual,
+    residual_of,
     zero_signal,
 )
 from ._solution import Solution, iterate
@@ -81,7 +81,7 @@ def gauss_newton(
         progress=progress,
         desc=where,
         image=lambda carry: as_complex(carry[0]),
-        start_residual=start_residual(operator.fn, signal, x),
+        start_residual=residual_of(operator.fn, signal, x),
     )
     return Solution(rho, history, stopped, stats | {"inner": inner, "damped": damped})
 

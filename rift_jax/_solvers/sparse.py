@@ -18,7 +18,7 @@ from jaxtyping import Array, Complex
 from .._operator import GRTOperator
 from .._precision import exact_jit
 from .._validation import check_positive_int
-from ._common import as_complex, as_pair, check_problem, relative, start_residual, zero_signal
+from ._common import as_complex, as_pair, check_problem, relative, residual_of, zero_signal
 from ._solution import History, Solution, iterate
 
 with warnings.catch_warnings():
@@ -108,7 +108,7 @@ def fista(
         start_residual=float("inf"),  # the start's residual is the first step's record
     )
     final = as_complex(last["pair"])
-    residual = start_residual(fn, signal, final)
+    residual = residual_of(fn, signal, final)
     if residual < history.residual.min():
         rho, stats = final, {"best": len(history)}
     seconds = np.append(history.seconds, time.perf_counter() - start)
