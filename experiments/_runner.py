@@ -309,6 +309,9 @@ def execute(
             "stopped": str(result.stopped),
             "points": result.n_points,  # the operator's unknowns (the support's, if any)
             "active_points": result.stats.get("active_points"),  # RIFT's final active set
+            # RIFT's collapse check: what was retried, and what still holds (None: nothing)
+            "remedies": result.stats.get("remedies", []),
+            "collapse": result.stats.get("collapse"),
         }
         results["rows"].append(row)
         results["wall_seconds"] += wall

@@ -2,10 +2,12 @@
 LSMR, Gauss-Newton, FISTA) and RIFT's INR training (`rift`, configured by a `Recipe`)."""
 
 from ._solvers import RECIPES as RECIPES
+from ._solvers import CollapseWarning as CollapseWarning
 from ._solvers import History as History
 from ._solvers import Recipe as Recipe
 from ._solvers import Solution as Solution
 from ._solvers import TrainingDiverged as TrainingDiverged
+from ._solvers import diagnose as diagnose
 from ._solvers import fista as fista
 from ._solvers import gauss_newton as gauss_newton
 from ._solvers import kaczmarz as kaczmarz
@@ -23,4 +25,6 @@ __all__ = [
     "Solution",
     "History",
     "TrainingDiverged",
+    "CollapseWarning",
+    "diagnose",
 ]

@@ -1,6 +1,7 @@
 """Stress tests at quick sizes: the data's scale and noise must not change what a
 reconstruction is, or make it non-finite."""
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -64,3 +65,94 @@ def test_noise_degrades_smoothly_and_never_gives_nan(problem, method):
         ssim.append(metrics["m_ssim"])
     assert np.all(np.diff(ssim) < 0.05), ssim
     assert ssim[-1] < ssim[0], ssim  # 0 dB costs something
+
+
+# -- RIFT collapse: detected, remedied, recorded ------------------------------------------
+
+
+def test_diagnose_names_each_failure_mode():
+    """Each collapse the authors' later code documents (a zero-scene fixed point, gain drift
+    under Adam) and a structureless or untrained field is named; a healthy run is not."""
+    losses = np.array([1.0, 0.7, 0.5, 0.45])
+    scene = np.zeros(125, np.complex64)
+    scene[40:60] = 1.0  # 16 % occupied, like a reconstruction with structure
+    healthy = dict(losses=losses, rho=scene, energy_ratio=0.9, gain_ratio=0.8)
+    assert rj.solvers.diagnose(**healthy) is None
+    cases = {
+        "gain drifted to zero": dict(gain_ratio=1e-3),
+        "zero field": dict(energy_ratio=1e-3),
+        "near-constant field": dict(rho=(0.3 + 0.1j) * (1 + 0.01 * np.sin(np.arange(125)))),
+        "loss flat from the start": dict(losses=np.array([1.0, 0.999, 0.995, 0.998])),
+    }  # fmt: skip
+    for mode, change in cases.items():
+        assert rj.solvers.diagnose(**healthy | change).startswith(mode), mode
+    # a warm start may begin converged: its flat loss is no collapse
+    flat = healthy | cases["loss flat from the start"]
+    assert rj.solvers.diagnose(**flat, warm=True) is None
+    assert rj.solvers.diagnose(**healthy | dict(energy_ratio=np.nan)).startswith("zero field")
+
+
+TINY = dict(
+    radar=rj.Radar(n_frequencies=8, n_tx=4, n_rx=4), method="rift-n", granularity=0.5,
+    epochs=6, progress=False,
+)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    scene = rj.scenes.cube(0.5, extent=1.0, edge=1.0)
+    train, _ = rj.Viewpoints.grid(5, 4, polar_range=(0.3, 1.3)).split(12, 4)
+    return scene, train
+
+
+def test_a_zero_field_is_retried_from_a_fresh_start(tiny, monkeypatch):
+    """A first attempt stuck at a zero field (a start whose fixed gain is 1e-12) is detected
+    and retried from seed + 1000 at half the learning rate: the result is exactly that
+    retry's, and the remedy is recorded."""
+    from rift_jax._solvers import inr
+
+    scene, train = tiny
+    original, calls = inr._initial_field, []
+
+    def first_one_dead(*args):
+        field = original(*args)
+        calls.append(field)
+        return rj.Field(field.model, field.extent, 1e-12) if len(calls) == 1 else field
+
+    monkeypatch.setattr(inr, "_initial_field", first_one_dead)
+    result = rj.fit(scene, train, gain=False, seed=3, **TINY)
+    assert len(calls) == 2 and result.stats["attempts"] == 2 and result.stats["collapse"] is None
+    (remedy,) = result.stats["remedies"]
+    assert remedy["collapse"].startswith("zero field")
+    assert remedy["seed"] == 1003 and remedy["learning_rate"] == pytest.approx(5e-3)
+    monkeypatch.setattr(inr, "_initial_field", original)
+    direct = rj.fit(scene, train, gain=False, seed=1003, learning_rate=5e-3, **TINY)
+    np.testing.assert_array_equal(result.scene.reflectivity, direct.scene.reflectivity)
+
+
+def test_gain_drift_is_detected_and_a_lasting_collapse_warns(tiny):
+    """A loss that pays for predicting nothing drives the learned gain to zero under Adam;
+    with no retries left the run is returned, named, and warned about."""
+    scene, train = tiny
+
+    def shrink(pred, target):
+        return jnp.mean(jnp.abs(pred) ** 2) / jnp.mean(jnp.abs(target) ** 2)
+
+    options = TINY | dict(epochs=60, batch_views=None, halve_every=None, learning_rate=0.3)
+    with pytest.warns(rj.solvers.CollapseWarning, match="gain drifted to zero"):
+        result = rj.fit(scene, train, loss=shrink, retries=0, **options)
+    assert result.stats["collapse"].startswith("gain drifted") and result.stats["attempts"] == 1
+
+
+def test_a_flat_loss_is_retried_then_the_best_attempt_returned(tiny):
+    """A learning rate too small to move anything leaves the loss flat from the start: each
+    of 1 + 2 attempts is tried, halving the rate, and the lowest-loss one is returned."""
+    scene, train = tiny
+    with pytest.warns(rj.solvers.CollapseWarning, match="loss flat from the start"):
+        result = rj.fit(scene, train, learning_rate=1e-12, batch_views=None, **TINY)
+    assert result.stats["attempts"] == 3
+    assert [r["seed"] for r in result.stats["remedies"]] == [1000, 2000]
+    assert [r["learning_rate"] for r in result.stats["remedies"]] == pytest.approx([5e-13, 2.5e-13])
+    assert all(r["collapse"].startswith("loss flat") for r in result.stats["remedies"])
+    with pytest.raises(ValueError, match="`retries` must be an int"):
+        rj.fit(scene, train, retries=-1, **TINY)

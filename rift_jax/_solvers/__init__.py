@@ -8,7 +8,9 @@ from ._solution import History as History
 from ._solution import Solution as Solution
 from ._solution import TrainingDiverged as TrainingDiverged
 from .inr import RECIPES as RECIPES
+from .inr import CollapseWarning as CollapseWarning
 from .inr import Recipe as Recipe
+from .inr import diagnose as diagnose
 from .inr import rift as rift
 from .kaczmarz import kaczmarz as kaczmarz
 from .linear import lsmr as lsmr

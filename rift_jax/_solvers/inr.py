@@ -17,6 +17,7 @@ import dataclasses
 import functools
 import math
 import time
+import warnings
 from collections.abc import Callable
 
 import equinox as eqx
@@ -75,6 +76,8 @@ class Recipe:
       order) and never train on them. Each epoch then measures their relative residual
       ‖y − Aρ‖/‖y‖ (``stats["holdout_residual"]``), and the best parameters and `patience`
       follow it instead of the training loss: early stopping on unseen data. 0: none.
+    - `retries`: how many times a collapsed run is retried from a fresh start at half the
+      learning rate (see `rift`, "Collapse"). 0: never.
     """
 
     loss: str | Callable = "robust"
@@ -91,6 +94,7 @@ class Recipe:
     prune: float | None = None
     recheck_every: int = 10
     holdout: int = 0
+    retries: int = 2
 
     def __post_init__(self):
         if not callable(self.loss) and self.loss not in LOSSES:
@@ -121,6 +125,10 @@ class Recipe:
             isinstance(self.holdout, int | np.integer) and self.holdout >= 0
         ):
             raise ValueError(f"Recipe: `holdout` must be an int ≥ 0, got {self.holdout!r}.")
+        if isinstance(self.retries, bool) or not (
+            isinstance(self.retries, int | np.integer) and self.retries >= 0
+        ):
+            raise ValueError(f"Recipe: `retries` must be an int ≥ 0, got {self.retries!r}.")
         if not 0 <= self.min_improvement < 1:
             raise ValueError(
                 f"Recipe: `min_improvement` must be in [0, 1), got {self.min_improvement!r}."
@@ -198,12 +206,140 @@ def rift(
     (``stats["epochs_run"]`` epochs).
     ``stats["active_points"]`` counts the points the returned field was trained on.
 
+    **Collapse.** After training, the run is checked for the ways an INR fails without a
+    non-finite value (`diagnose`): a global gain that drifted to zero, a field whose signals
+    carry almost none of the data's energy, a near-constant field, or a loss that never
+    fell from its first epoch (not checked for an `init` warm start, which may begin
+    converged). A collapsed run is retried up to the recipe's `retries` times, each from a
+    fresh initialisation (seed + 1000·k; an `init` field is kept) at half the previous
+    learning rate. ``stats["remedies"]`` records each retry (the collapse it answered, its
+    seed and learning rate), ``stats["collapse"]`` what remains wrong with the returned run
+    (None: nothing), and ``stats["attempts"]`` how many ran. If every attempt collapsed,
+    the one with the lowest best loss is returned and a `CollapseWarning` says so.
+
     **Raises:** `TrainingDiverged` (a ValueError) if a loss or gradient becomes non-finite,
     naming the epoch; its ``.solution`` holds the best parameters so far.
     """
     name = model if isinstance(model, str) else type(model).__name__
     where = f"rift ({name})"
     recipe = _recipe(where, recipe, overrides)
+    train = functools.partial(
+        _train, operator, signal, where=where, name=name, model=model, width=width,
+        depth=depth, init=init, extent=extent, fine_points=fine_points,
+        fine_epochs=fine_epochs, progress=progress,
+    )  # fmt: skip
+    solution = train(recipe=recipe, seed=seed)
+    if solution.stopped == "zero signal":
+        return solution
+    attempts, remedies = [solution], []
+    why = _check_collapse(solution, operator.fn, signal, warm=init is not None)
+    learning_rate = solution.stats["recipe"]["learning_rate"]
+    for k in range(1, recipe.retries + 1):
+        if why is None:
+            break
+        learning_rate /= 2
+        retry_seed = seed + 1000 * k
+        remedies.append(
+            {"attempt": k, "collapse": why, "seed": retry_seed, "learning_rate": learning_rate}
+        )
+        retry = dataclasses.replace(recipe, learning_rate=learning_rate)
+        attempts.append(train(recipe=retry, seed=retry_seed))
+        why = _check_collapse(attempts[-1], operator.fn, signal, warm=init is not None)
+    if why is None:
+        solution = attempts[-1]
+    else:  # every attempt collapsed: the one that fitted best, said out loud
+        solution = min(attempts, key=lambda s: s.stats["best_loss"])
+        why = _check_collapse(solution, operator.fn, signal, warm=init is not None)
+        warnings.warn(
+            f"{where}: training collapsed ({why}) in each of {len(attempts)} attempts; "
+            "returning the one with the lowest loss. More epochs, another seed or a "
+            "finer/coarser grid may help (docs/rift.md, Collapse).",
+            CollapseWarning,
+            stacklevel=2,
+        )
+    stats = {"remedies": remedies, "collapse": why, "attempts": len(attempts)}
+    return dataclasses.replace(solution, stats=solution.stats | stats)
+
+
+class CollapseWarning(UserWarning):
+    """RIFT training collapsed (see `rift`'s "Collapse") in every attempt it was given."""
+
+
+# thresholds of `diagnose`: far from any reconstruction seen to work (docs/rift.md, Collapse)
+_ZERO_ENERGY = 1e-2  # ‖Aρ‖/‖y‖ below this: the field predicts (almost) nothing
+_GAIN_DRIFT = 1e-2  # |g| fallen below this share of its start: drifting to zero
+_CONSTANT = 0.1  # std|ρ| / mean|ρ| below this: no structure
+_FLAT = 0.99  # best loss above this share of the first epoch's: no descent
+
+
+def diagnose(
+    losses: np.ndarray,
+    rho: np.ndarray,
+    energy_ratio: float,
+    gain_ratio: float,
+    *,
+    warm: bool = False,
+) -> str | None:
+    """Why a RIFT run collapsed, or None: the checks `rift` makes after training.
+
+    **Arguments:**
+
+    - `losses`: the training loss per epoch.
+    - `rho`: the returned field's rendering on the grid.
+    - `energy_ratio`: ‖Aρ‖/‖y‖ on (some of) the training viewpoints.
+    - `gain_ratio`: |g| of the returned field over |g| at the start.
+    - `warm`: the run started from a given field (a flat loss is then no collapse).
+
+    **Returns:** a sentence naming the failure mode, or None.
+    """
+    magnitude = np.abs(np.asarray(rho))
+    if not gain_ratio >= _GAIN_DRIFT:
+        return f"gain drifted to zero: |g| fell to {gain_ratio:.2g} of its start"
+    if not energy_ratio >= _ZERO_ENERGY:
+        return f"zero field: its signals carry {100 * energy_ratio:.2g} % of the data's norm"
+    mean = magnitude.mean()
+    if mean > 0 and magnitude.std() < _CONSTANT * mean:
+        return f"near-constant field: std|ρ| is {magnitude.std() / mean:.1%} of mean|ρ|"
+    losses = np.asarray(losses)
+    if not warm and len(losses) >= 3 and losses.min() > _FLAT * losses[0]:
+        return (
+            f"loss flat from the start: best {losses.min():.4g} against the first epoch's "
+            f"{losses[0]:.4g}"
+        )
+    return None
+
+
+def _check_collapse(solution: Solution, fn: GRT, signal, *, warm: bool) -> str | None:
+    """`diagnose` for a trained run; ‖Aρ‖/‖y‖ from up to 10 evenly spread viewpoints."""
+    index = np.unique(np.linspace(0, fn.n_views - 1, min(10, fn.n_views)).round().astype(int))
+    energy = float(_energy_ratio(*replicated((fn, solution.rho, signal, jnp.asarray(index)))))
+    gain_ratio = float(abs(solution.field.gain)) / solution.stats["initial_gain"]
+    return diagnose(solution.history.loss, solution.rho, energy, gain_ratio, warm=warm)
+
+
+@exact_jit
+def _energy_ratio(fn: GRT, rho, signal, index) -> Float[Array, ""]:
+    return jnp.linalg.norm(fn.subset(index)(rho)) / jnp.linalg.norm(signal[index])
+
+
+def _train(
+    operator: GRTOperator,
+    signal,
+    *,
+    where: str,
+    name: str,
+    model,
+    recipe: Recipe,
+    width: int,
+    depth: int,
+    init: Field | None,
+    extent: float | None,
+    fine_points,
+    fine_epochs: int | None,
+    seed: int,
+    progress: bool,
+) -> Solution:
+    """One training run of `rift` (no collapse check): see there."""
     signal, _ = check_problem(where, operator, signal, None, recipe.epochs)
     fn = operator.fn
     if (solution := zero_signal(where, signal, jnp.zeros(fn.n_points, jnp.complex64))) is not None:
@@ -252,6 +388,7 @@ def rift(
         gain = float(_energy_gain(*replicated((field, seen[0], coords, seen[1]))))
         if np.isfinite(gain) and gain != 0:
             field = Field(field.model, extent, gain)
+    initial_gain = float(abs(field.gain))  # for the collapse check: has it drifted to zero?
 
     n_views = len(trained_views)
     batch = n_views if recipe.batch_views is None else min(recipe.batch_views, n_views)
@@ -299,6 +436,7 @@ def rift(
             "steps_per_epoch": steps,
             "batch_views": batch,
             "active_points": int(trained.sum()),
+            "initial_gain": initial_gain,
         }
         if len(held):
             stats |= {"holdout_views": held.tolist(), "holdout_residual": holdout_residuals}
