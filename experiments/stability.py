@@ -187,6 +187,13 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path) 
                     f"- {LABELS[method]} beats {LABELS[BASELINE]} in {wins} of {total} "
                     f"(scene, noise, seed) ({100 * wins / total:.0f} %)."
                 )
+    retried = [r for r in rows if r.get("remedies")]
+    collapsed = [r for r in rows if r.get("collapse")]
+    lines.append(
+        f"- RIFT's collapse check (docs/rift.md) retried {len(retried)} run(s); "
+        f"{len(collapsed)} still collapsed after their retries."
+    )
+    lines += [f"  - {r['scene']}, {r['run']}: {r['collapse']}." for r in collapsed]
     lines += [
         "",
         "m-SSIM per cell: median [min, max] over seeds, and failures.",
