@@ -29,6 +29,7 @@ import rift_jax as rj
 from ._output import write_atomic, write_json
 
 MODEL_LABELS = {"rift-n": "RIFT(N)", "rift-s": "RIFT(S)"}
+STRONGEST_LS = "FISTA"  # the label of the strongest least squares (method "fista")
 """The paper's names of the `fit` methods that train an INR."""
 
 
@@ -62,7 +63,8 @@ class Budget:
     ``rift_patience`` epochs without progress (None: never), and trains only where
     |ρ| ≥ ``rift_prune``·max, re-chosen every ``recheck_every`` epochs (None: everywhere).
     ``support`` restricts every method to a support (`rift_jax.fit`'s option; None: the
-    whole grid)."""
+    whole grid). FISTA, the strongest least squares (docs/solvers.md), runs at most
+    ``fista_iterations`` and stops once converged (its default tol)."""
 
     sweeps: int
     rift_steps: int
@@ -71,10 +73,15 @@ class Budget:
     rift_patience: int | None = None
     recheck_every: int = 10
     support: str | None = None
+    fista_iterations: int = 100
 
     def ls(self) -> dict:
         """`fit` options of a Kaczmarz run."""
         return {"iterations": self.sweeps, "tol": self.ls_tol} | self._support()
+
+    def fista(self) -> dict:
+        """`fit` options of a FISTA run."""
+        return {"iterations": self.fista_iterations} | self._support()
 
     def rift(self, n_train: int) -> dict:
         """`fit` options of a RIFT run from ``n_train`` views."""
@@ -88,8 +95,8 @@ class Budget:
     def _support(self) -> dict:
         return {} if self.support is None else {"support": self.support}
 
-    def describe(self, model: str = "RIFT") -> str:
-        """The budgets in words, for a results page."""
+    def describe(self, model: str = "RIFT", fista: bool = False) -> str:
+        """The budgets in words, for a results page (FISTA's too, if it ran)."""
         ls = f"Kaczmarz {self.sweeps} sweep(s)"
         if self.ls_tol:
             ls = (
@@ -108,6 +115,11 @@ class Budget:
                 f"every {self.recheck_every} epochs)"
             )
         text = f"{ls}; {rift}"
+        if fista:
+            text += (
+                f"; FISTA (sparse prior, default λ) at most {self.fista_iterations} "
+                "iterations, stopped once converged"
+            )
         if self.support == "auto":
             text += (
                 '; every method on the support estimated from its training data (`support="auto"`)'
