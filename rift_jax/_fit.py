@@ -22,12 +22,12 @@ from . import _metrics, _solvers
 from ._geometry import Radar, Viewpoints
 from ._models import Field
 from ._operator import grt_operator
-from ._scenes import Scene, nesting_granularities, shared_fraction
+from ._scenes import Scene, grid_size, nesting_granularities, shared_fraction
 from ._sharding import gathered
 from ._solvers import History, TrainingDiverged
 from ._support import as_mask, estimate_support, mask_at, voxels_holding
 from ._synthesis import RadarData, synthesize
-from ._validation import check_finite
+from ._validation import check_finite, check_seed
 
 METHODS = {
     "kaczmarz": _solvers.kaczmarz,
@@ -205,10 +205,14 @@ def fit(
             f"fit: method {method!r} takes no option(s) {sorted(unknown)}; it takes "
             f"{sorted(accepted - {'seed'})}."
         )
+    for name, value in options.items():  # e.g. tol=nan: no comparison with it ever stops
+        if isinstance(value, float | np.floating) and not np.isfinite(value):
+            raise ValueError(f"fit: option `{name}` must be finite, got {value!r}.")
     if not isinstance(viewpoints, Viewpoints):
         raise ValueError(
             f"fit: `viewpoints` must be rift_jax.Viewpoints, got {type(viewpoints).__name__}."
         )
+    check_seed("fit: `seed`", seed)
     signal, scale, radar, extent, granularity = _data(
         scene_or_signal, viewpoints, radar, extent, granularity, snr_db, seed
     )
@@ -352,8 +356,9 @@ def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):
             raise ValueError(
                 f"fit: `extent` ({extent}) must be left out or equal the scene's ({data.extent})."
             )
-        data_ = synthesize(data, viewpoints, radar, snr_db=snr_db, seed=seed)
         granularity = 2 * data.granularity if granularity is None else granularity
+        grid_size(data.extent, granularity, "fit")  # a grid with points, or say which argument
+        data_ = synthesize(data, viewpoints, radar, snr_db=snr_db, seed=seed)
         _warn_unless_nested(data, granularity)
         return data_.signal, data_.scale, data_.radar, data.extent, granularity
     if snr_db is not None:
@@ -363,6 +368,7 @@ def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):
             "fit: given signals rather than a Scene, pass the grid to reconstruct on as "
             "`extent` (half-width, m) and `granularity` (m)."
         )
+    grid_size(extent, granularity, "fit")
     if isinstance(data, RadarData):
         if radar is not None and radar != data.radar:
             raise ValueError("fit: `radar` differs from the RadarData's own radar.")
@@ -375,14 +381,17 @@ def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):
     radar = Radar() if radar is None else radar
     signal = np.asarray(data)
     if not np.issubdtype(signal.dtype, np.number):
-        raise ValueError(f"fit: the signal must be a complex array, got dtype {signal.dtype}.")
+        raise ValueError(
+            "fit: the signal (`scene_or_signal`) must be a complex array, got dtype "
+            f"{signal.dtype}."
+        )
     expected = (len(viewpoints), *radar.signal_shape)
     if signal.shape != expected:
         raise ValueError(
-            f"fit: the signal must have shape {expected} (n_views, n_freq, n_tx, n_rx) for "
-            f"{len(viewpoints)} viewpoints and this radar, got {signal.shape}."
+            f"fit: the signal (`scene_or_signal`) must have shape {expected} (n_views, n_freq, "
+            f"n_tx, n_rx) for {len(viewpoints)} viewpoints and this radar, got {signal.shape}."
         )
-    check_finite(signal, "fit: the signal")
+    check_finite(signal, "fit: the signal (`scene_or_signal`)")
     peak = float(np.max(np.abs(signal)))
     scale = peak if peak > 0 else 1.0  # solvers work on O(1) data; ρ is scaled back
     return signal / scale, scale, radar, extent, granularity

@@ -59,6 +59,8 @@ class Radar:
                 f"f_min={self.f_min!r}, f_max={self.f_max!r}."
             )
         check_positive("Radar: `distance`", self.distance)
+        if not isinstance(self.near_field, bool | np.bool_):  # a string would read as True
+            raise ValueError(f"Radar: `near_field` must be True or False, got {self.near_field!r}.")
         spacing = C0 / (2.0 * self.f_max) if self.spacing is None else self.spacing
         check_positive("Radar: `spacing`", spacing)
         object.__setattr__(self, "spacing", float(spacing))
@@ -109,7 +111,9 @@ class Viewpoints:
                 f"shapes {azimuth.shape} and {polar.shape}."
             )
         if azimuth.size == 0:
-            raise ValueError("Viewpoints: need at least one viewpoint, got none.")
+            raise ValueError(
+                "Viewpoints: `azimuth` and `polar` must hold at least one viewpoint, got none."
+            )
         _check_angles(azimuth, polar, "Viewpoints")
         azimuth.setflags(write=False)
         polar.setflags(write=False)
@@ -128,6 +132,9 @@ class Viewpoints:
         included, as ``np.linspace``), azimuth-major. Defaults give the paper's 2,601."""
         for name, n in (("n_azimuth", n_azimuth), ("n_polar", n_polar)):
             check_positive_int(f"Viewpoints.grid: `{name}`", n)
+        for name, pair in (("azimuth_range", azimuth_range), ("polar_range", polar_range)):
+            if as_finite_array(pair, f"Viewpoints.grid: `{name}`").shape != (2,):
+                raise ValueError(f"Viewpoints.grid: `{name}` must be (first, last), got {pair!r}.")
         az = np.linspace(*azimuth_range, n_azimuth)
         pol = np.linspace(*polar_range, n_polar)
         az, pol = np.meshgrid(az, pol, indexing="ij")
@@ -142,6 +149,11 @@ class Viewpoints:
     def subset(self, index: Sequence[int] | np.ndarray) -> Viewpoints:
         """The viewpoints at integer positions (or a boolean mask) ``index``."""
         index = np.asarray(index)
+        if index.size == 0 or not (index.dtype == bool or np.issubdtype(index.dtype, np.integer)):
+            raise ValueError(
+                "Viewpoints.subset: `index` must be integer positions or a boolean mask that "
+                f"selects at least one viewpoint, got {index.size} value(s) of dtype {index.dtype}."
+            )
         if (
             index.dtype != bool
             and index.size
@@ -154,8 +166,8 @@ class Viewpoints:
         """A seeded random draw of ``n_train`` training and ``n_test`` disjoint test
         viewpoints from these (sampling without replacement)."""
         for name, n in (("n_train", n_train), ("n_test", n_test)):
-            if not isinstance(n, int | np.integer) or n < 0:
-                raise ValueError(f"Viewpoints.split: `{name}` must be a non-negative integer.")
+            # a Viewpoints holds at least one viewpoint, so neither draw may be empty
+            check_positive_int(f"Viewpoints.split: `{name}`", n)
         if n_train + n_test > len(self):
             raise ValueError(
                 f"Viewpoints.split: `n_train` + `n_test` = {n_train + n_test} exceeds the "

@@ -26,7 +26,7 @@ from . import _grt
 from ._geometry import Radar, Viewpoints, antenna_positions
 from ._precision import Float64Pair, leading, split, to_float64
 from ._sharding import over_views
-from ._validation import as_finite_array, check_positive_int, is_concrete
+from ._validation import as_finite_array, check_finite, check_positive_int, is_concrete
 
 
 def _views_per_batch() -> int:
@@ -166,6 +166,9 @@ class GRTOperator(lx.AbstractLinearOperator):
     conjugated: bool = eqx.field(static=True, default=False)
 
     def mv(self, vector):
+        # a linear map carries NaN into every output sample: say so where it came from
+        # (concrete input only; inside a solver's trace there is nothing to look at)
+        check_finite(vector, "GRTOperator.mv: `vector`")
         if self.transposed and self.conjugated:
             return self.fn.adjoint(vector)
         if self.transposed:

@@ -20,32 +20,35 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
-from ._validation import as_finite_array, check_positive, is_concrete
+from ._validation import as_finite_array, check_finite, check_positive
 
 _TOL = 1e-6  # metres: points on an object's boundary count as inside
 
 
-def grid_size(extent: float, granularity: float) -> int:
-    """Points per axis of the grid with this ``granularity`` within ``±extent``."""
-    check_positive("`extent`", extent)
-    check_positive("`granularity`", granularity)
+def grid_size(extent: float, granularity: float, where: str = "grid_size") -> int:
+    """Points per axis of the grid with this ``granularity`` within ``±extent`` (errors name
+    ``where``, the public function that was called)."""
+    check_positive(f"{where}: `extent`", extent)
+    check_positive(f"{where}: `granularity`", granularity)
     if granularity > extent:
         raise ValueError(
-            f"`granularity` ({granularity} m) must not exceed `extent` ({extent} m, the "
+            f"{where}: `granularity` ({granularity} m) must not exceed `extent` ({extent} m, the "
             "half-width): the grid would have a single point."
         )
     return int(math.floor(2 * extent / granularity + 1e-6)) + 1
 
 
-def grid_axis(extent: float, granularity: float) -> np.ndarray:
+def grid_axis(extent: float, granularity: float, where: str = "grid_axis") -> np.ndarray:
     """The grid's coordinates along one axis (metres, float64, centred at 0)."""
-    n = grid_size(extent, granularity)
+    n = grid_size(extent, granularity, where)
     return (np.arange(n) - (n - 1) / 2) * granularity
 
 
-def grid_points(extent: float, granularity: float) -> Float[np.ndarray, "n_points 3"]:
+def grid_points(
+    extent: float, granularity: float, where: str = "grid_points"
+) -> Float[np.ndarray, "n_points 3"]:
     """All points of the cubic grid, x-major (the order of ``reflectivity.ravel()``)."""
-    axis = grid_axis(extent, granularity)
+    axis = grid_axis(extent, granularity, where)
     return np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
@@ -88,12 +91,9 @@ class Scene(eqx.Module):
     def __check_init__(self):
         if not hasattr(self.reflectivity, "shape"):
             raise ValueError("Scene: `reflectivity` must be an array (nx, ny, nz).")
-        if is_concrete(self.reflectivity) and not np.all(
-            np.isfinite(np.asarray(self.reflectivity))
-        ):
-            raise ValueError("Scene: `reflectivity` must be finite; it holds NaN/inf values.")
+        check_finite(self.reflectivity, "Scene: `reflectivity`")
         shape = self.reflectivity.shape
-        n = grid_size(self.extent, self.granularity)
+        n = grid_size(self.extent, self.granularity, "Scene")
         if shape != (n, n, n):
             raise ValueError(
                 f"Scene: `reflectivity` must have shape {(n, n, n)} for extent {self.extent} m "
@@ -116,7 +116,7 @@ class Scene(eqx.Module):
     @classmethod
     def empty(cls, extent: float, granularity: float) -> Scene:
         """An all-zero scene (e.g. a reconstruction grid)."""
-        n = grid_size(extent, granularity)
+        n = grid_size(extent, granularity, "Scene.empty")
         return cls(jnp.zeros((n, n, n), jnp.complex64), float(extent), float(granularity))
 
     @property
@@ -150,7 +150,7 @@ class Scene(eqx.Module):
         from skimage.filters import gaussian
         from skimage.transform import warp
 
-        n_new = grid_size(self.extent, granularity)
+        n_new = grid_size(self.extent, granularity, "Scene.resample")
         factor = granularity / self.granularity
         coords = (grid_axis(self.extent, granularity) / self.granularity) + (self.shape[0] - 1) / 2
         mesh = np.stack(np.meshgrid(coords, coords, coords, indexing="ij"))
@@ -171,9 +171,9 @@ class Scene(eqx.Module):
 # --- The paper's scenes -----------------------------------------------------------------
 
 
-def _coordinates(extent: float, granularity: float) -> tuple[np.ndarray, ...]:
-    """(x, y, z) of every grid point, each (n, n, n)."""
-    return np.meshgrid(*(grid_axis(extent, granularity),) * 3, indexing="ij")
+def _coordinates(extent: float, granularity: float, where: str = "scene") -> tuple[np.ndarray, ...]:
+    """(x, y, z) of every grid point, each (n, n, n); errors name the builder ``where``."""
+    return np.meshgrid(*(grid_axis(extent, granularity, where),) * 3, indexing="ij")
 
 
 def _box(xyz, centre, size) -> np.ndarray:
@@ -190,9 +190,9 @@ def _ball(xyz, centre, radius: float) -> np.ndarray:
     return squares <= (radius + _TOL) ** 2
 
 
-def _scene_from_boxes(boxes, extent: float, granularity: float) -> Scene:
+def _scene_from_boxes(boxes, extent: float, granularity: float, where: str = "scene") -> Scene:
     """Union of axis-aligned boxes ``(centre, size, value)``; later boxes overwrite earlier."""
-    xyz = _coordinates(extent, granularity)
+    xyz = _coordinates(extent, granularity, where)
     rho = np.zeros(xyz[0].shape, np.complex64)
     for centre, size, value in boxes:
         rho[_box(xyz, centre, size)] = value
@@ -202,13 +202,15 @@ def _scene_from_boxes(boxes, extent: float, granularity: float) -> Scene:
 def sphere(granularity: float = 0.2, *, extent: float = 5.0, radius: float = 2.0) -> Scene:
     """Solid sphere of ``radius`` (paper: 2 m) centred at the origin, ρ = 1.
     At 0.2 m: 4,169 occupied voxels."""
-    rho = _ball(_coordinates(extent, granularity), (0, 0, 0), radius).astype(np.complex64)
+    check_positive("sphere: `radius`", radius)  # NaN or ≤ 0 would give an empty scene
+    rho = _ball(_coordinates(extent, granularity, "sphere"), (0, 0, 0), radius).astype(np.complex64)
     return Scene(jnp.asarray(rho), float(extent), float(granularity))
 
 
 def cube(granularity: float = 0.2, *, extent: float = 5.0, edge: float = 2.0) -> Scene:
     """Solid axis-aligned cube of ``edge`` (paper: 2 m) centred at the origin, ρ = 1."""
-    return _scene_from_boxes([((0, 0, 0), (edge, edge, edge), 1.0)], extent, granularity)
+    check_positive("cube: `edge`", edge)  # NaN or ≤ 0 would give an empty scene
+    return _scene_from_boxes([((0, 0, 0), (edge, edge, edge), 1.0)], extent, granularity, "cube")
 
 
 def pyramid(
@@ -217,7 +219,9 @@ def pyramid(
     """Solid square pyramid (the paper's "tetrahedron"): ``base × base`` square at
     z = -height/2, apex at z = +height/2 (bounding box centred at the origin; the paper
     does not place it), ρ = 1."""
-    x, y, z = _coordinates(extent, granularity)
+    check_positive("pyramid: `base`", base)  # NaN or ≤ 0 would give an empty scene
+    check_positive("pyramid: `height`", height)
+    x, y, z = _coordinates(extent, granularity, "pyramid")
     half = (base / 2) * (height / 2 - z) / height  # half-width of the cross-section at z
     inside = (np.abs(z) <= height / 2 + _TOL) & (np.maximum(np.abs(x), np.abs(y)) <= half + _TOL)
     return Scene(jnp.asarray(inside.astype(np.complex64)), float(extent), float(granularity))
@@ -240,7 +244,7 @@ def parking_lot(granularity: float = 0.2, *, extent: float = 5.0) -> Scene:
             boxes.append(((x, y, GROUND + 1.1), (0.2, 0.2, 2.2), 1.0))
     boxes.append(((-0.9, -1.0, GROUND + 0.3), (0.8, 0.6, 0.6), 1.0))
     boxes.append(((0.9, 1.5, GROUND + 0.2), (1.0, 0.4, 0.4), 1.0))
-    return _scene_from_boxes(boxes, extent, granularity)
+    return _scene_from_boxes(boxes, extent, granularity, "parking_lot")
 
 
 def highway(granularity: float = 0.2, *, extent: float = 5.0) -> Scene:
@@ -255,7 +259,7 @@ def highway(granularity: float = 0.2, *, extent: float = 5.0) -> Scene:
     for x in (-4.0, 0.0, 4.0):
         boxes.append(((x, 0.0, GROUND + 1.0), (0.2, 2 * extent, 2.0), 1.0))
     boxes.append(((2.0, 3.2, GROUND + 0.8), (0.8, 2.4, 1.6), 1.0))
-    return _scene_from_boxes(boxes, extent, granularity)
+    return _scene_from_boxes(boxes, extent, granularity, "highway")
 
 
 def weak_target(
@@ -276,7 +280,7 @@ def weak_target(
     size = (0.72, 2.4, 0.48)
     offset = gap / 2 + size[0] / 2
     boxes = [((-offset, 0.0, 0.0), size, 1.0), ((offset, 0.0, 0.0), size, float(ratio))]
-    return _scene_from_boxes(boxes, extent, granularity)
+    return _scene_from_boxes(boxes, extent, granularity, "weak_target")
 
 
 # --- Scenes the paper never used --------------------------------------------------------
@@ -302,7 +306,7 @@ def random_primitives(
             f"{count!r}."
         )
     rng = np.random.default_rng(seed)
-    xyz = _coordinates(extent, granularity)
+    xyz = _coordinates(extent, granularity, "random_primitives")
     rho = np.zeros(xyz[0].shape, np.complex64)
     reach = 0.7 * extent
     thin = max(granularity, 0.2)  # poles and plates hold at least one plane of points

@@ -28,7 +28,7 @@ from ._geometry import Radar, Viewpoints
 from ._operator import grt_operator
 from ._scenes import Scene
 from ._sharding import gathered
-from ._validation import check_finite, check_positive_int
+from ._validation import check_finite, check_numeric, check_positive_int
 
 
 def as_mask(support, grid: Scene) -> np.ndarray:
@@ -147,6 +147,16 @@ def estimate_support(
     **Returns:** a read-only boolean mask of ``grid.shape``.
     """
     radar = Radar() if radar is None else radar
+    for name, value, kind in (
+        ("viewpoints", viewpoints, Viewpoints),
+        ("grid", grid, Scene),
+        ("radar", radar, Radar),
+    ):
+        if not isinstance(value, kind):
+            raise ValueError(
+                f"estimate_support: `{name}` must be a rift_jax.{kind.__name__}, got "
+                f"{type(value).__name__}."
+            )
     if not (isinstance(threshold, int | float | np.floating) and 0 < threshold < 1):
         raise ValueError(f"estimate_support: `threshold` must be in (0, 1), got {threshold!r}.")
     if isinstance(dilation, bool) or not (isinstance(dilation, int | np.integer) and dilation >= 0):
@@ -154,6 +164,7 @@ def estimate_support(
     check_positive_int("estimate_support: `oversample`", oversample)
     check_positive_int("estimate_support: `max_views`", max_views)
     signal = np.asarray(signal)
+    check_numeric(signal, "estimate_support: `signal`")
     if signal.shape != (len(viewpoints), *radar.signal_shape):
         raise ValueError(
             f"estimate_support: `signal` must have shape {(len(viewpoints), *radar.signal_shape)}"
@@ -170,7 +181,7 @@ def estimate_support(
         np.maximum.at(pooled, tuple(index[inside].T), back[inside])
     peak = pooled.max()
     if peak == 0:
-        raise ValueError("estimate_support: the signal is zero; there is nothing to find.")
+        raise ValueError("estimate_support: `signal` is zero; there is nothing to find.")
     mask = pooled >= threshold * peak
     if dilation:
         mask = scipy.ndimage.binary_dilation(mask, iterations=dilation)

@@ -70,8 +70,21 @@ def synthesize(
         raise ValueError(
             f"synthesize: `scene` must be a rift_jax.Scene, got {type(scene).__name__}."
         )
-    if snr_db is not None and not np.isfinite(snr_db):
+    if not isinstance(radar, Radar):
+        raise ValueError(
+            f"synthesize: `radar` must be a rift_jax.Radar, got {type(radar).__name__}."
+        )
+    if not isinstance(viewpoints, Viewpoints):
+        raise ValueError(
+            "synthesize: `viewpoints` must be rift_jax.Viewpoints, got "
+            f"{type(viewpoints).__name__}."
+        )
+    if snr_db is not None and not (
+        isinstance(snr_db, int | float | np.integer | np.floating) and np.isfinite(snr_db)
+    ):
         raise ValueError(f"synthesize: `snr_db` must be a finite number or None, got {snr_db!r}.")
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):  # JAX's keys take any int
+        raise ValueError(f"synthesize: `seed` must be an integer, got {seed!r}.")
     points, rho = scene.occupied()
     if rho.size == 0:
         raise ValueError("synthesize: `scene` has no non-zero voxels, so its signal is zero.")
