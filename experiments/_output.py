@@ -25,6 +25,17 @@ def write_atomic(path: str | Path, data: bytes | str) -> Path:
     return path
 
 
+def check_writable(directory: str | Path) -> None:
+    """Create ``directory`` if needed and write (and drop) a temporary file in it: an OSError
+    now, before any run, rather than at the first save after minutes or hours of work."""
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise NotADirectoryError(f"{directory} is a file, not a directory")
+    directory.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryFile(dir=directory, prefix=".probe.", suffix=".tmp"):
+        pass
+
+
 def write_json(path: str | Path, obj) -> Path:
     return write_atomic(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
 

@@ -26,7 +26,7 @@ import numpy as np
 
 import rift_jax as rj
 
-from ._output import write_atomic, write_json
+from ._output import check_writable, write_atomic, write_json
 
 MODEL_LABELS = {"rift-n": "RIFT(N)", "rift-s": "RIFT(S)"}
 STRONGEST_LS = "FISTA"  # the label of the strongest least squares (method "fista")
@@ -359,6 +359,10 @@ def parse(argv, doc: str, scales: Mapping, name: str):
     parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
     args = parser.parse_args(argv)
     args.out = args.out or Path("results") / f"{name}_{args.scale}"
+    try:
+        check_writable(args.out)
+    except OSError as error:  # an existing file, a read-only place: say so before any run
+        parser.error(f"argument --out: cannot write results to {args.out}: {error}")
     return scales[args.scale], args
 
 
