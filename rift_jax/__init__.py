@@ -54,6 +54,7 @@ from ._operator import grt_operator as grt_operator  # noqa: E402
 from ._scenes import Scene as Scene  # noqa: E402
 from ._scenes import grid_points as grid_points  # noqa: E402
 from ._support import estimate_support as estimate_support  # noqa: E402
+from ._synthesis import PointScatterers as PointScatterers  # noqa: E402
 from ._synthesis import RadarData as RadarData  # noqa: E402
 from ._synthesis import synthesize as synthesize  # noqa: E402
 

@@ -26,7 +26,7 @@ from ._scenes import Scene, grid_size, nesting_granularities, shared_fraction
 from ._sharding import gathered
 from ._solvers import History, TrainingDiverged
 from ._support import as_mask, estimate_support, mask_at, voxels_holding
-from ._synthesis import RadarData, synthesize
+from ._synthesis import PointScatterers, RadarData, synthesize
 from ._validation import check_finite, check_seed
 
 METHODS = {
@@ -111,19 +111,24 @@ class FitResult:
         )
 
     def evaluate(
-        self, truth: Scene, test_viewpoints: Viewpoints, *, threshold: float = 0.2
+        self, truth: Scene | PointScatterers, test_viewpoints: Viewpoints, *, threshold: float = 0.2
     ) -> dict[str, float]:
         """The paper's four metrics against ``truth``: m-SSIM, m-COS, t-IoU (truth resampled
-        to the inverse grid) and p-RMSE of the predicted signals at ``test_viewpoints``
-        against the truth's. Also the recorded data ``residual``."""
-        if not isinstance(truth, Scene):
+        to the inverse grid; `PointScatterers` spread onto it, see their `resample`) and
+        p-RMSE of the predicted signals at ``test_viewpoints`` against the truth's (for
+        point scatterers, from their exact positions). Also the recorded data ``residual``."""
+        if not isinstance(truth, Scene | PointScatterers):
             raise ValueError(
-                f"FitResult.evaluate: `truth` must be a rift_jax.Scene, got {type(truth).__name__}."
+                "FitResult.evaluate: `truth` must be a rift_jax.Scene or PointScatterers, got "
+                f"{type(truth).__name__}."
             )
+        image = truth
+        if isinstance(truth, PointScatterers):  # the metrics compare volumes on one grid
+            image = truth.resample(self.scene.granularity)
         return {
-            "m_ssim": _metrics.m_ssim(self.scene, truth),
-            "m_cos": _metrics.m_cos(self.scene, truth),
-            "t_iou": _metrics.t_iou(self.scene, truth, threshold=threshold),
+            "m_ssim": _metrics.m_ssim(self.scene, image),
+            "m_cos": _metrics.m_cos(self.scene, image),
+            "t_iou": _metrics.t_iou(self.scene, image, threshold=threshold),
             "p_rmse": _metrics.p_rmse(
                 self.predict(test_viewpoints), synthesize(truth, test_viewpoints, self.radar)
             ),
@@ -132,7 +137,10 @@ class FitResult:
 
 
 def fit(
-    scene_or_signal: Scene | RadarData | Complex[Array, "n_views n_freq n_tx n_rx"],
+    scene_or_signal: Scene
+    | PointScatterers
+    | RadarData
+    | Complex[Array, "n_views n_freq n_tx n_rx"],
     viewpoints: Viewpoints,
     *,
     radar: Radar | None = None,
@@ -151,13 +159,15 @@ def fit(
       forward grid; with noise if ``snr_db``), and the scene is reconstructed on the inverse
       grid of ``granularity`` over the same extent (default: twice the scene's granularity,
       the paper's 0.2 m → 0.4 m).
+    - Given `PointScatterers`: as a `Scene`, synthesised from their exact positions, on the
+      grid of ``granularity`` (required: they have no grid of their own) over their extent.
     - Given measured signals (a `RadarData`, or a complex array (n_views, n_freq, n_tx, n_rx)
       in the order of ``viewpoints``): reconstructs on the grid ``±extent`` at
       ``granularity`` (both required).
 
     **Arguments:**
 
-    - `scene_or_signal`: a `Scene`, a `RadarData`, or a complex array.
+    - `scene_or_signal`: a `Scene`, `PointScatterers`, a `RadarData`, or a complex array.
     - `viewpoints`: a `Viewpoints`, one per signal.
     - `radar`: a `Radar` (default the paper's; a `RadarData` brings its own).
     - `method`: ``"kaczmarz"`` (the paper's baseline), ``"lsmr"`` (lineax), ``"gauss-newton"``
@@ -351,15 +361,21 @@ def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):
     """(normalised signal, its scale, radar, extent, granularity) for `fit`'s input."""
     if radar is not None and not isinstance(radar, Radar):
         raise ValueError(f"fit: `radar` must be a rift_jax.Radar, got {type(radar).__name__}.")
-    if isinstance(data, Scene):
+    if isinstance(data, Scene | PointScatterers):
         if extent is not None and extent != data.extent:
             raise ValueError(
                 f"fit: `extent` ({extent}) must be left out or equal the scene's ({data.extent})."
             )
+        if granularity is None and isinstance(data, PointScatterers):
+            raise ValueError(
+                "fit: given PointScatterers, pass the inverse grid's `granularity` (m): they "
+                "have no grid of their own to default to."
+            )
         granularity = 2 * data.granularity if granularity is None else granularity
         grid_size(data.extent, granularity, "fit")  # a grid with points, or say which argument
         data_ = synthesize(data, viewpoints, radar, snr_db=snr_db, seed=seed)
-        _warn_unless_nested(data, granularity)
+        if isinstance(data, Scene):  # point scatterers share no grid with any
+            _warn_unless_nested(data, granularity)
         return data_.signal, data_.scale, data_.radar, data.extent, granularity
     if snr_db is not None:
         raise ValueError("fit: `snr_db` applies to a Scene; measured signals carry their noise.")
