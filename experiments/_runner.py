@@ -228,12 +228,12 @@ def execute(
     name: str,
     scale: str,
     cfg,
-    scenes: Mapping[str, rj.Scene],
+    scenes: Mapping[str, rj.Scene | rj.PointScatterers],
     runs: list[Run],
     *,
     pool: rj.Viewpoints,
     radar: rj.Radar,
-    inverse: float,
+    inverse: float | Mapping[str, float],
     n_test: int,
     seed: int,
     out: Path,
@@ -244,6 +244,9 @@ def execute(
 ) -> dict:
     """Do every run not yet in ``out`` (with ``resume``), writing after each. Returns the
     results dict (as in ``results.json``).
+
+    ``inverse`` is the inverse grid's granularity, or one per scene (a scene's truth volume
+    and runs share its grid; to reconstruct one truth at several, name it once per grid).
 
     ``report(results, volumes, figures)`` writes the experiment's table, and its figures
     when ``figures`` (at the end, and at most once a minute before: drawing takes seconds).
@@ -271,8 +274,9 @@ def execute(
         print(f"resuming: {len(done['rows'])} runs kept from {out / 'results.json'}", flush=True)
     else:
         results["versions"] = versions()
-    for key, scene in scenes.items():
-        volumes[f"truth/{key}"] = np.asarray(scene.resample(inverse).reflectivity)
+    grids = {key: inverse for key in scenes} if not isinstance(inverse, Mapping) else inverse
+    for key, scene in scenes.items():  # a Scene resampled, PointScatterers spread
+        volumes[f"truth/{key}"] = np.asarray(scene.resample(grids[key]).reflectivity)
 
     drawn = time.perf_counter()
 
@@ -303,7 +307,7 @@ def execute(
             test,
             radar=radar,
             method=run.method,
-            granularity=inverse,
+            granularity=grids[run.scene],
             seed=run_seed,
             progress=progress,
             options=dict(run.options),

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import rift_jax as rj
-from experiments import _runner, complex_scenes, simple_scenes, stability, weak_target
+from experiments import _runner, complex_scenes, mismatch, simple_scenes, stability, weak_target
 from experiments._output import write_atomic
 
 FILES = ("results.json", "results.md", "reconstructions.npz")
@@ -22,6 +22,7 @@ EXPERIMENTS = {
     "simple_scenes": (simple_scenes, MIPS),
     "complex_scenes": (complex_scenes, MIPS),
     "stability": (stability, ("stability.png",)),
+    "mismatch": (mismatch, ("mismatch.png",)),
 }
 
 
@@ -69,6 +70,8 @@ def test_quick_scale_numbers_are_finite_and_in_range(quick_run):
             assert f"{row['scene']}**, {row['run']}: " in text
     elif name == "stability":
         check_stability_counts(out)
+    elif name == "mismatch":
+        check_mismatch_cells(results)
     else:
         scene = results["rows"][0]["scene"]
         assert f"| {scene} | RIFT(N)-10 beats LS-10 | " in text
@@ -185,3 +188,22 @@ def test_stability_judges_a_run_against_its_cell():
     verdicts = [r["failed"] for r in stability.judge(rows)]
     assert verdicts[:2] == [None, None] and verdicts[3] is None
     assert "half the median 0.800" in verdicts[2] and verdicts[4] == "non-finite metric"
+
+
+def check_mismatch_cells(results):
+    """The mismatch study ran every truth x grid x noise x method once, each truth on its own
+    grid: the point truth's image is its spread, of the same total reflectivity."""
+    cfg = mismatch.SCALES["quick"]
+    cells = mismatch._cells(results["rows"])
+    expected = {
+        (t, g, mismatch.noise_name(s), mismatch.LABELS[m])
+        for t in cfg.truths
+        for g in cfg.resolutions
+        for s in cfg.snrs
+        for m in cfg.methods
+    }
+    assert set(cells) == expected
+    points = mismatch.point_scatterers(cfg.n_scatterers, cfg.extent, results["seed"])
+    spread = np.asarray(points.resample(cfg.resolutions[0]).reflectivity)
+    total = complex(np.sum(np.asarray(points.reflectivity)))
+    assert complex(np.sum(spread)) == pytest.approx(total, rel=1e-5)
