@@ -27,7 +27,7 @@ from ._sharding import gathered
 from ._solvers import History, TrainingDiverged
 from ._support import as_mask, estimate_support, mask_at, voxels_holding
 from ._synthesis import PointScatterers, RadarData, synthesize
-from ._validation import check_finite, check_seed
+from ._validation import check_finite, check_instance, check_seed
 
 METHODS = {
     "kaczmarz": _solvers.kaczmarz,
@@ -218,10 +218,7 @@ def fit(
     for name, value in options.items():  # e.g. tol=nan: no comparison with it ever stops
         if isinstance(value, float | np.floating) and not np.isfinite(value):
             raise ValueError(f"fit: option `{name}` must be finite, got {value!r}.")
-    if not isinstance(viewpoints, Viewpoints):
-        raise ValueError(
-            f"fit: `viewpoints` must be rift_jax.Viewpoints, got {type(viewpoints).__name__}."
-        )
+    check_instance("fit: `viewpoints`", viewpoints, Viewpoints, "rift_jax.Viewpoints")
     check_seed("fit: `seed`", seed)
     signal, scale, radar, extent, granularity = _data(
         scene_or_signal, viewpoints, radar, extent, granularity, snr_db, seed
@@ -359,8 +356,8 @@ def _warn_unless_nested(data: Scene, granularity: float) -> None:
 
 def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):
     """(normalised signal, its scale, radar, extent, granularity) for `fit`'s input."""
-    if radar is not None and not isinstance(radar, Radar):
-        raise ValueError(f"fit: `radar` must be a rift_jax.Radar, got {type(radar).__name__}.")
+    if radar is not None:
+        check_instance("fit: `radar`", radar, Radar, "a rift_jax.Radar")
     if isinstance(data, Scene | PointScatterers):
         if extent is not None and extent != data.extent:
             raise ValueError(

@@ -26,7 +26,13 @@ from . import _grt
 from ._geometry import Radar, Viewpoints, antenna_positions
 from ._precision import Float64Pair, leading, split, to_float64
 from ._sharding import over_views
-from ._validation import as_finite_array, check_finite, check_positive_int, is_concrete
+from ._validation import (
+    as_finite_array,
+    check_finite,
+    check_instance,
+    check_positive_int,
+    is_concrete,
+)
 
 
 def _views_per_batch() -> int:
@@ -254,15 +260,8 @@ def grt_operator(
     `.transpose()` runs the hand-written adjoint kernel. Gradients through `.mv` come from
     JAX's own transpose of the forward kernel (exact, slower than the adjoint kernel).
     """
-    if not isinstance(radar, Radar):
-        raise ValueError(
-            f"grt_operator: `radar` must be a rift_jax.Radar, got {type(radar).__name__}."
-        )
-    if not isinstance(viewpoints, Viewpoints):
-        raise ValueError(
-            "grt_operator: `viewpoints` must be rift_jax.Viewpoints, got "
-            f"{type(viewpoints).__name__}."
-        )
+    check_instance("grt_operator: `radar`", radar, Radar, "a rift_jax.Radar")
+    check_instance("grt_operator: `viewpoints`", viewpoints, Viewpoints, "rift_jax.Viewpoints")
     points = as_finite_array(grid_points, "grt_operator: `grid_points`", np.float64)
     if points.ndim != 2 or points.shape[1] != 3 or points.shape[0] == 0:
         raise ValueError(

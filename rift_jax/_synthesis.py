@@ -14,7 +14,7 @@ from ._geometry import Radar, Viewpoints
 from ._operator import grt_operator
 from ._scenes import Scene, grid_axis
 from ._sharding import gathered
-from ._validation import as_finite_array, check_positive
+from ._validation import as_finite_array, check_instance, check_positive
 
 
 class RadarData(eqx.Module):
@@ -142,15 +142,8 @@ def synthesize(
             "synthesize: `scene` must be a rift_jax.Scene or rift_jax.PointScatterers, got "
             f"{type(scene).__name__}."
         )
-    if not isinstance(radar, Radar):
-        raise ValueError(
-            f"synthesize: `radar` must be a rift_jax.Radar, got {type(radar).__name__}."
-        )
-    if not isinstance(viewpoints, Viewpoints):
-        raise ValueError(
-            "synthesize: `viewpoints` must be rift_jax.Viewpoints, got "
-            f"{type(viewpoints).__name__}."
-        )
+    check_instance("synthesize: `radar`", radar, Radar, "a rift_jax.Radar")
+    check_instance("synthesize: `viewpoints`", viewpoints, Viewpoints, "rift_jax.Viewpoints")
     if snr_db is not None and not (
         isinstance(snr_db, int | float | np.integer | np.floating) and np.isfinite(snr_db)
     ):

@@ -33,6 +33,13 @@ def check_positive_int(name: str, value) -> None:
         raise ValueError(f"{name} must be a positive integer, got {value!r}.")
 
 
+def check_instance(name: str, value, cls: type, expected: str) -> None:
+    """Raise unless ``value`` is a ``cls``, saying what was ``expected`` (e.g. "a
+    rift_jax.Radar") and what came instead."""
+    if not isinstance(value, cls):
+        raise ValueError(f"{name} must be {expected}, got {type(value).__name__}.")
+
+
 def check_seed(name: str, value) -> None:
     """Raise unless ``value`` is an integer ≥ 0 (what NumPy's generators accept; JAX's keys
     take any integer, but the solvers seed both)."""
