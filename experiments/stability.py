@@ -19,11 +19,11 @@ results.md reports each cell (scene × noise × method), RIFT's win rate against
 Scales:
 - quick (seconds; the tests): one random scene at ±2.4 m, 0.4 / 0.8 m, two seeds, RIFT(N)
   and FISTA, noise-free and 0 dB, a tiny radar;
-- default (~45 minutes on 2 CPU cores, 450 runs): ±4.8 m, forward 0.4 m, inverse 0.8 m
-  (13³ unknowns; the grids nest, and the paper's scenes keep their parts), 100 training
-  and 20 test views, a radar of 16 frequencies and 8 × 8 antennas, RIFT 300 steps of 10
-  views, FISTA at most 100 iterations. (Smaller radars or grids were tried and reconstruct
-  nothing: docs/experiments.md.);
+- default (68 minutes measured on 2 shared CPU cores, 450 runs): ±4.8 m, forward 0.4 m,
+  inverse 0.8 m (13³ unknowns; the grids nest, and the paper's scenes keep their parts),
+  100 training and 20 test views, a radar of 16 frequencies and 8 × 8 antennas, RIFT 300
+  steps of 10 views, FISTA at most 100 iterations. (Smaller radars or grids were tried
+  and reconstruct less: docs/experiments.md.);
 - paper: ±5 m at 0.2 / 0.4 m, 100 training views, the paper's radar, RIFT 1000 steps.
 
 Writes results.json (with a top-level integer ``failures``), results.md, stability.png
