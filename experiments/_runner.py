@@ -140,6 +140,29 @@ converged. The weak target takes all but the support (its 36° aperture leaves t
 estimate 92-99 % of the grid: docs/solvers.md)."""
 
 
+PAPER_SCENES = ("sphere", "cube", "pyramid", "parking_lot", "highway", "weak_target")
+
+
+def build_scene(name: str, granularity: float, extent: float) -> rj.Scene:
+    """The scene called ``name`` on the grid ±``extent`` at ``granularity``: a paper scene
+    (the weak target at 4:1) or "random-K" (`rift_jax.scenes.random_primitives`, seed K)."""
+    seed = name.removeprefix("random-")
+    if name.startswith("random-") and seed.isdigit():
+        return rj.scenes.random_primitives(int(seed), granularity, extent=extent)
+    if name not in PAPER_SCENES:
+        raise ValueError(
+            f"build_scene: `name` must be one of {list(PAPER_SCENES)} or 'random-K', got {name!r}."
+        )
+    if name == "weak_target":
+        return rj.scenes.weak_target(0.25, granularity, extent=extent)
+    return getattr(rj.scenes, name)(granularity, extent=extent)
+
+
+def noise_name(snr: float | None) -> str:
+    """A noise level as the tables name it: "noise-free" or e.g. "20 dB"."""
+    return "noise-free" if snr is None else f"{snr:g} dB"
+
+
 def draw(pool: rj.Viewpoints, n_train: int, n_test: int, seed: int):
     """(train, test): one seeded test set shared by every run, and training sets drawn from
     the rest in one fixed order, so LS-100 ⊂ LS-200 ⊂ ... and all runs face the same test."""

@@ -56,9 +56,11 @@ from ._output import save_figure, write_atomic
 from ._runner import (
     METRIC_COLUMNS,
     Run,
+    build_scene,
     command,
     environment_line,
     execute,
+    noise_name,
     rift_options,
     table,
 )
@@ -144,22 +146,9 @@ def snapped(scatterers: rj.PointScatterers, granularity: float) -> rj.PointScatt
     return rj.PointScatterers(axis[index.astype(int)], scatterers.reflectivity, scatterers.extent)
 
 
-def fine_scene(name: str, granularity: float, extent: float) -> rj.Scene:
-    """The "fine" truth: "random-K" (`random_primitives`, seed K) or a paper scene."""
-    if name.startswith("random-"):
-        return rj.scenes.random_primitives(int(name.split("-")[1]), granularity, extent=extent)
-    if name not in ("sphere", "cube", "pyramid", "parking_lot", "highway"):
-        raise ValueError(f"fine_scene: `name` must be 'random-K' or a paper scene, got {name!r}.")
-    return getattr(rj.scenes, name)(granularity, extent=extent)
-
-
 def key(truth: str, granularity: float) -> str:
     """The runner's scene name of ``truth`` reconstructed on the grid of ``granularity``."""
     return f"{truth} @ {granularity:g} m"
-
-
-def noise_name(snr: float | None) -> str:
-    return "noise-free" if snr is None else f"{snr:g} dB"
 
 
 def label(method: str, snr: float | None) -> str:
@@ -302,7 +291,7 @@ def main(
     if unknown:
         raise ValueError(f"mismatch: `cfg.truths` holds unknown {sorted(unknown)}.")
     points = point_scatterers(cfg.n_scatterers, cfg.extent, seed)
-    fine = fine_scene(cfg.fine_scene, cfg.fine, cfg.extent) if "fine" in cfg.truths else None
+    fine = build_scene(cfg.fine_scene, cfg.fine, cfg.extent) if "fine" in cfg.truths else None
     truths = {"points": lambda g: points, "snapped": lambda g: snapped(points, g)}
     truths["fine"] = lambda g: fine
     scenes = {key(t, g): truths[t](g) for t in cfg.truths for g in cfg.resolutions}

@@ -44,10 +44,13 @@ import rift_jax as rj
 from ._output import save_figure, write_atomic, write_json
 from ._runner import (
     METRIC_COLUMNS,
+    PAPER_SCENES,
     Run,
+    build_scene,
     command,
     environment_line,
     execute,
+    noise_name,
     rift_options,
     table,
 )
@@ -73,7 +76,6 @@ class Config:
     ls_iterations: int  # FISTA's budget (it stops once converged, tol 1e-3)
 
 
-PAPER_SCENES = ("sphere", "cube", "pyramid", "parking_lot", "highway", "weak_target")
 RANDOM_SCENES = tuple(f"random-{k}" for k in range(4))
 SCALES = {
     "quick": Config(
@@ -91,19 +93,6 @@ SCALES = {
         n_antennas=16, rift_steps=1000, ls_iterations=100,
     ),
 }  # fmt: skip
-
-
-def build(name: str, granularity: float, extent: float) -> rj.Scene:
-    """The scene called ``name``: a paper scene (the weak target at 4:1) or "random-K"."""
-    if name.startswith("random-"):
-        return rj.scenes.random_primitives(int(name.split("-")[1]), granularity, extent=extent)
-    if name == "weak_target":
-        return rj.scenes.weak_target(0.25, granularity, extent=extent)
-    return getattr(rj.scenes, name)(granularity, extent=extent)
-
-
-def noise_name(snr: float | None) -> str:
-    return "noise-free" if snr is None else f"{snr:g} dB"
 
 
 def label(method: str, snr: float | None, seed: int) -> str:
@@ -273,7 +262,7 @@ def main(
 ) -> dict:
     """Every run of ``cfg``; the results dict as written to ``out/results.json``, with
     ``failures`` (an integer: the target is 0)."""
-    scenes = {name: build(name, cfg.forward, cfg.extent) for name in cfg.scenes}
+    scenes = {name: build_scene(name, cfg.forward, cfg.extent) for name in cfg.scenes}
     radar = rj.Radar(n_frequencies=cfg.n_frequencies, n_tx=cfg.n_antennas, n_rx=cfg.n_antennas)
     results = execute(
         "stability",
