@@ -27,7 +27,7 @@ from ._sharding import gathered
 from ._solvers import History, TrainingDiverged
 from ._support import as_mask, estimate_support, mask_at, voxels_holding
 from ._synthesis import PointScatterers, RadarData, synthesize
-from ._validation import check_finite, check_instance, check_seed
+from ._validation import check_finite, check_instance, check_nonnegative_int
 
 METHODS = {
     "kaczmarz": _solvers.kaczmarz,
@@ -219,7 +219,7 @@ def fit(
         if isinstance(value, float | np.floating) and not np.isfinite(value):
             raise ValueError(f"fit: option `{name}` must be finite, got {value!r}.")
     check_instance("fit: `viewpoints`", viewpoints, Viewpoints, "rift_jax.Viewpoints")
-    check_seed("fit: `seed`", seed)
+    check_nonnegative_int("fit: `seed`", seed)
     signal, scale, radar, extent, granularity = _data(
         scene_or_signal, viewpoints, radar, extent, granularity, snr_db, seed
     )

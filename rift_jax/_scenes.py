@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
-from ._validation import as_finite_array, check_finite, check_positive
+from ._validation import as_finite_array, check_finite, check_nonnegative_int, check_positive
 
 _TOL = 1e-6  # metres: points on an object's boundary count as inside
 
@@ -298,8 +298,7 @@ def random_primitives(
     inside ±0.7·``extent`` (so they fit), each with a reflectivity magnitude in [0.25, 1]
     and, for half of them, a random phase. Later primitives overwrite earlier ones.
     The same seed gives the same scene at every granularity (up to sampling)."""
-    if not isinstance(seed, int | np.integer) or seed < 0:
-        raise ValueError(f"random_primitives: `seed` must be an integer ≥ 0, got {seed!r}.")
+    check_nonnegative_int("random_primitives: `seed`", seed)
     if not (len(count) == 2 and 1 <= count[0] <= count[1]):
         raise ValueError(
             f"random_primitives: `count` must be (least, most) with 1 ≤ least ≤ most, got "

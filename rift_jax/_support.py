@@ -28,7 +28,13 @@ from ._geometry import Radar, Viewpoints
 from ._operator import grt_operator
 from ._scenes import Scene
 from ._sharding import gathered
-from ._validation import check_finite, check_numeric, check_positive_int
+from ._validation import (
+    check_finite,
+    check_instance,
+    check_nonnegative_int,
+    check_numeric,
+    check_positive_int,
+)
 
 
 def as_mask(support, grid: Scene) -> np.ndarray:
@@ -152,15 +158,10 @@ def estimate_support(
         ("grid", grid, Scene),
         ("radar", radar, Radar),
     ):
-        if not isinstance(value, kind):
-            raise ValueError(
-                f"estimate_support: `{name}` must be a rift_jax.{kind.__name__}, got "
-                f"{type(value).__name__}."
-            )
+        check_instance(f"estimate_support: `{name}`", value, kind, f"a rift_jax.{kind.__name__}")
     if not (isinstance(threshold, int | float | np.floating) and 0 < threshold < 1):
         raise ValueError(f"estimate_support: `threshold` must be in (0, 1), got {threshold!r}.")
-    if isinstance(dilation, bool) or not (isinstance(dilation, int | np.integer) and dilation >= 0):
-        raise ValueError(f"estimate_support: `dilation` must be an int ≥ 0, got {dilation!r}.")
+    check_nonnegative_int("estimate_support: `dilation`", dilation)
     check_positive_int("estimate_support: `oversample`", oversample)
     check_positive_int("estimate_support: `max_views`", max_views)
     signal = np.asarray(signal)

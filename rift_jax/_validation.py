@@ -40,9 +40,10 @@ def check_instance(name: str, value, cls: type, expected: str) -> None:
         raise ValueError(f"{name} must be {expected}, got {type(value).__name__}.")
 
 
-def check_seed(name: str, value) -> None:
-    """Raise unless ``value`` is an integer ≥ 0 (what NumPy's generators accept; JAX's keys
-    take any integer, but the solvers seed both)."""
+def check_nonnegative_int(name: str, value) -> None:
+    """Raise unless ``value`` is a Python or NumPy integer ≥ 0 (a count that may be zero, or
+    a seed: what NumPy's generators accept; JAX's keys take any integer, but the solvers
+    seed both)."""
     if not _is_number(value) or not isinstance(value, int | np.integer) or value < 0:
         raise ValueError(f"{name} must be an integer ≥ 0, got {value!r}.")
 

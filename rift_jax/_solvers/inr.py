@@ -34,7 +34,12 @@ from .._models import MODELS, AbstractINR, Field
 from .._operator import GRT, GRTOperator
 from .._precision import exact_jit, split, to_float64
 from .._sharding import replicated
-from .._validation import as_finite_array, check_positive, check_positive_int
+from .._validation import (
+    as_finite_array,
+    check_nonnegative_int,
+    check_positive,
+    check_positive_int,
+)
 from ._common import as_complex, as_pair, check_problem, realified, zero_signal
 from ._solution import History, Solution, TrainingDiverged
 
@@ -121,14 +126,8 @@ class Recipe:
         if self.prune is not None and not 0 < self.prune < 1:
             raise ValueError(f"Recipe: `prune` must be in (0, 1) or None, got {self.prune!r}.")
         check_positive_int("Recipe: `recheck_every`", self.recheck_every)
-        if isinstance(self.holdout, bool) or not (
-            isinstance(self.holdout, int | np.integer) and self.holdout >= 0
-        ):
-            raise ValueError(f"Recipe: `holdout` must be an int ≥ 0, got {self.holdout!r}.")
-        if isinstance(self.retries, bool) or not (
-            isinstance(self.retries, int | np.integer) and self.retries >= 0
-        ):
-            raise ValueError(f"Recipe: `retries` must be an int ≥ 0, got {self.retries!r}.")
+        check_nonnegative_int("Recipe: `holdout`", self.holdout)
+        check_nonnegative_int("Recipe: `retries`", self.retries)
         if not 0 <= self.min_improvement < 1:
             raise ValueError(
                 f"Recipe: `min_improvement` must be in [0, 1), got {self.min_improvement!r}."
@@ -231,25 +230,30 @@ def rift(
     solution = train(recipe=recipe, seed=seed)
     if solution.stopped == "zero signal":
         return solution
-    attempts, remedies = [solution], []
-    why = _check_collapse(solution, operator.fn, signal, warm=init is not None)
+
+    def checked(solution: Solution) -> tuple[Solution, str | None]:
+        return solution, _check_collapse(solution, operator.fn, signal, warm=init is not None)
+
+    attempts, remedies = [checked(solution)], []  # (solution, why it collapsed or None)
     learning_rate = solution.stats["recipe"]["learning_rate"]
     for k in range(1, recipe.retries + 1):
-        if why is None:
+        if attempts[-1][1] is None:
             break
         learning_rate /= 2
         retry_seed = seed + 1000 * k
         remedies.append(
-            {"attempt": k, "collapse": why, "seed": retry_seed, "learning_rate": learning_rate}
+            {
+                "attempt": k,
+                "collapse": attempts[-1][1],
+                "seed": retry_seed,
+                "learning_rate": learning_rate,
+            }
         )
         retry = dataclasses.replace(recipe, learning_rate=learning_rate)
-        attempts.append(train(recipe=retry, seed=retry_seed))
-        why = _check_collapse(attempts[-1], operator.fn, signal, warm=init is not None)
-    if why is None:
-        solution = attempts[-1]
-    else:  # every attempt collapsed: the one that fitted best, said out loud
-        solution = min(attempts, key=lambda s: s.stats["best_loss"])
-        why = _check_collapse(solution, operator.fn, signal, warm=init is not None)
+        attempts.append(checked(train(recipe=retry, seed=retry_seed)))
+    solution, why = attempts[-1]
+    if why is not None:  # every attempt collapsed: the one that fitted best, said out loud
+        solution, why = min(attempts, key=lambda attempt: attempt[0].stats["best_loss"])
         warnings.warn(
             f"{where}: training collapsed ({why}) in each of {len(attempts)} attempts; "
             "returning the one with the lowest loss. More epochs, another seed or a "
