@@ -29,8 +29,8 @@ import rift_jax as rj
 from ._output import check_writable, write_atomic, write_json
 
 MODEL_LABELS = {"rift-n": "RIFT(N)", "rift-s": "RIFT(S)"}
-STRONGEST_LS = "FISTA"  # the label of the strongest least squares (method "fista")
 """The paper's names of the `fit` methods that train an INR."""
+STRONGEST_LS = "FISTA"  # the label of the strongest least squares (method "fista")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -111,6 +111,17 @@ SCALES = {
 PAPER_NAMES = {"kaczmarz": "LS", "rift-n": "RIFT", "rift-s": "RIFT"}  # _paper.WEAK_TARGET's
 
 
+def methods(cfg: Config) -> list[tuple[str, str, dict]]:
+    """(label, `fit` method, options) of each reconstruction of every contrast: the paper's
+    LS, FISTA (with ``cfg.fista``) and RIFT, in the figure's row order."""
+    n = cfg.n_train
+    return [
+        (f"LS-{n}", "kaczmarz", cfg.budget.ls()),
+        *([(f"{STRONGEST_LS}-{n}", "fista", cfg.budget.fista())] if cfg.fista else []),
+        (f"{MODEL_LABELS[cfg.model]}-{n}", cfg.model, cfg.budget.rift(n)),
+    ]
+
+
 def contrast(ratio: float) -> str:
     """The scene's name: the strong bar's reflectivity over the weak one's, e.g. ``"4:1"``."""
     return f"{1 / ratio:.3g}:1"
@@ -207,8 +218,7 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path, 
     rows = results["rows"]
     keys = [contrast(r) for r in cfg.ratios]
     truths = {k: measure(k, volumes[f"truth/{k}"]) for k in keys}
-    ls, rift = f"LS-{cfg.n_train}", f"{MODEL_LABELS[cfg.model]}-{cfg.n_train}"
-    labels = [ls, *([f"{STRONGEST_LS}-{cfg.n_train}"] if cfg.fista else []), rift]
+    labels = [label for label, _, _ in methods(cfg)]
     columns = [
         ("contrast", lambda r: r["scene"]),
         ("run", run_cell),
@@ -319,16 +329,11 @@ def main(
         raise ValueError(f"weak_target: `ratios` {cfg.ratios} name the same contrast twice.")
     bars = {key: footprints(scene) for key, scene in scenes.items()}
     axis = rj.Scene.empty(cfg.extent, cfg.inverse).axis()
-    ls, rift = cfg.budget.ls(), cfg.budget.rift(cfg.n_train)
-    runs = []
-    for key in scenes:
-        runs.append(Run(key, f"LS-{cfg.n_train}", "kaczmarz", cfg.n_train, ls))
-        if cfg.fista:
-            label = f"{STRONGEST_LS}-{cfg.n_train}"
-            runs.append(Run(key, label, "fista", cfg.n_train, cfg.budget.fista()))
-        runs.append(
-            Run(key, f"{MODEL_LABELS[cfg.model]}-{cfg.n_train}", cfg.model, cfg.n_train, rift)
-        )
+    runs = [
+        Run(key, label, method, cfg.n_train, options)
+        for key in scenes
+        for label, method, options in methods(cfg)
+    ]
 
     def measure(key, volume):
         return resolvability(volume, axis, *bars[key], threshold=cfg.threshold, dip=cfg.dip)
