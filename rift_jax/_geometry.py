@@ -1,5 +1,5 @@
 """Radar geometry: the radar's configuration, the viewpoints it looks from, and where its
-antennas are (paper Appendix "Radar Setup", resolved as in NOTES.md).
+antennas are (paper Appendix "Radar Setup", resolved as in docs/conventions.md, 'Geometry').
 
 Angles: the paper calls the polar angle (from +z) "azimuth" and the azimuth "elevation";
 here they are named for what they are, ``polar`` ∈ [0, π] and ``azimuth`` ∈ [-2π, 2π].
@@ -33,7 +33,8 @@ class Radar:
     - `n_frequencies`, `f_min`, `f_max`: the frequency grid (Hz).
     - `n_tx`, `n_rx`: antennas on each arm of the L.
     - `spacing`: element spacing (m); `None` gives c0 / (2 f_max) = 1.4276 mm, the paper's
-      value (NOTES.md: the stated number uses f_max, not f_min).
+      value and the authors' code's (the paper's formula, from f_min, would give 1.578 mm;
+      docs/conventions.md, 'Geometry').
     - `distance`: radius of the sphere of viewpoints (m); 10 m in the paper, 50 m in the
       weak-target study.
     - `near_field`: keep the 1/R_b² spreading factor (paper F_NF) or drop it (F_FF).

@@ -4,7 +4,7 @@
 
 with k_f = 2π f / c0, A = 1/R² in the near field and A = 1 in the far field.
 
-Why it is computed the way it is (NOTES.md, "Numbers measured"):
+Why it is computed the way it is (measured numbers in docs/conventions.md, "Precision"):
 
 - **float64 geometry.** k·R reaches 10⁴-10⁵ rad, so a float32 distance (ulp ≈ 1e-6 m at
   10 m) puts 10⁻³ rad of phase error on every term. Distances and the few phases per distance

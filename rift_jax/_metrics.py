@@ -1,10 +1,10 @@
 """The paper's four metrics (Section 3.3 and Appendix "Further Discussion on Metrics").
 
 Scene metrics compare reflectivity *magnitudes* (the phase of ρ is not identifiable from the
-paper's data, NOTES.md), each volume divided by its own maximum. When a prediction and the
-truth live on different grids, the truth is resampled to the prediction's grid with
-scikit-image first (the paper's protocol; `Scene.resample`). The signal metric compares
-phases of signals at viewpoints that were not used for fitting.
+paper's data: docs/conventions.md, 'Two-grid protocol'), each volume divided by its own
+maximum. When a prediction and the truth live on different grids, the truth is resampled to
+the prediction's grid with scikit-image first (the paper's protocol; `Scene.resample`). The
+signal metric compares phases of signals at viewpoints that were not used for fitting.
 """
 
 from __future__ import annotations

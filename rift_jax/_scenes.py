@@ -4,8 +4,8 @@ paper's synthetic scenes (Section 4, Appendix "Additional Results").
 Grid convention: points at ``(i - (n - 1)/2) · granularity`` for i < n, with n the most that
 fit within ``±extent``, endpoints included when ``2·extent`` is a multiple of the granularity.
 Such grids nest: the 0.4 m grid over ±5 m (26 points per axis) is every other point of the
-0.2 m grid (51 points). NOTES.md ("two-grid protocol") explains why nesting matters: data
-synthesised on one grid is only explainable on a grid whose points it shares.
+0.2 m grid (51 points). docs/conventions.md ("Two-grid protocol") explains why nesting
+matters: data synthesised on one grid is only explainable on a grid whose points it shares.
 
 Each voxel is a point scatterer at its grid point; a builder marks a voxel occupied when its
 point lies inside the object (boundaries inclusive, to 1e-6 m).

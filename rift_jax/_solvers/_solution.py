@@ -2,7 +2,7 @@
 
 Each solver is a jitted step function (a `lax` loop, an optimistix/jaxopt/lineax step) called
 from a Python loop, so that wall time, progress and early stopping stay on the host, outside
-the compiled code (STYLE.md: "one jitted step").
+the compiled code.
 """
 
 from __future__ import annotations

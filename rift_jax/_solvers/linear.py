@@ -26,10 +26,11 @@ def lsmr(
     """Least squares min ‖y − Aρ‖ by `lineax.LSMR`, stopped early.
 
     On data that no image on the grid explains exactly (noise, or the paper's coarser
-    inverse grid, NOTES.md), LSMR first fits the well-determined components and later the
-    noise: stopping early is the regularisation. Here the run is checked every
-    ``check_every`` LSMR steps: lineax is restarted from the current ρ (its ``y0`` option),
-    the residual is recorded, and the run stops when it stagnates (``tol``).
+    inverse grid: docs/conventions.md, 'Two-grid protocol'), LSMR first fits the
+    well-determined components and later the noise: stopping early is the regularisation.
+    Here the run is checked every ``check_every`` LSMR steps: lineax is restarted from the
+    current ρ (its ``y0`` option), the residual is recorded, and the run stops when it
+    stagnates (``tol``).
 
     **What an iteration is:** ``check_every`` LSMR steps (each one forward and one adjoint
     pass over all viewpoints), plus one forward pass for the restart's residual.
