@@ -3,7 +3,9 @@
 Data's path through the package: geometry (`Radar`, `Viewpoints`, `antenna_positions`) →
 scene (`Scene`, `rift_jax.scenes`) → GRT kernel (`rift_jax.grt`) → operator
 (`grt_operator`; on a support, `estimate_support`) → solvers and INRs (`rift_jax.solvers`,
-`RiftN`, `RiftS`, `Field`, `rift_jax.losses`) → `fit` → metrics (`rift_jax.metrics`).
+`RiftN`, `RiftS`, `Field`, `rift_jax.losses`) → `fit` → metrics (`rift_jax.metrics`). In and
+out of files: `save`, `load`, `load_rift_public` (the RIFT authors' NPZ layout), `export_ply`
+(a point cloud for 3-D viewers).
 """
 
 import os as _os
@@ -44,6 +46,10 @@ from ._geometry import C0 as C0  # noqa: E402
 from ._geometry import Radar as Radar  # noqa: E402
 from ._geometry import Viewpoints as Viewpoints  # noqa: E402
 from ._geometry import antenna_positions as antenna_positions  # noqa: E402
+from ._io import export_ply as export_ply  # noqa: E402
+from ._io import load as load  # noqa: E402
+from ._io import load_rift_public as load_rift_public  # noqa: E402
+from ._io import save as save  # noqa: E402
 from ._models import AbstractINR as AbstractINR  # noqa: E402
 from ._models import Field as Field  # noqa: E402
 from ._models import RiftN as RiftN  # noqa: E402

@@ -1,0 +1,343 @@
+"""Data in and out: `save` / `load` round trips (NPZ and HDF5, exact to the bit), the RIFT
+authors' public NPZ layout read back as the data it was written from, PLY point clouds
+that an independent reader (plyfile) parses, and bad files refused by name."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import numpy as np
+import plyfile
+import pytest
+
+import rift_jax as rj
+
+SUFFIXES = [".npz", ".h5"]
+
+
+@pytest.fixture(scope="module")
+def measured():
+    """A small measured dataset: 12 views of a 1 m cube, with noise."""
+    radar = rj.Radar(n_frequencies=8, n_tx=3, n_rx=4, distance=8.0)
+    scene = rj.scenes.cube(0.5, extent=1.0, edge=1.0)
+    views = rj.Viewpoints.grid(4, 3, polar_range=(0.3, 1.3))
+    return scene, rj.synthesize(scene, views, radar, snr_db=20.0, seed=3)
+
+
+GRID = dict(extent=1.0, granularity=0.5, method="lsmr", iterations=4, progress=False)
+
+
+@pytest.fixture(scope="module")
+def reference(measured):
+    """The measured data's reconstruction (one compilation, shared by the tests)."""
+    _, data = measured
+    return rj.fit(data, data.viewpoints, **GRID)
+
+
+def same_tree(a, b) -> None:
+    """Equal leaf by leaf: arrays bit for bit with their dtypes, everything else by ==."""
+    leaves_a, tree_a = jax.tree_util.tree_flatten(a)
+    leaves_b, tree_b = jax.tree_util.tree_flatten(b)
+    assert tree_a == tree_b  # the static fields (radar, viewpoints, extent, ...) too
+    for x, y in zip(leaves_a, leaves_b, strict=True):
+        x, y = np.asarray(x), np.asarray(y)
+        assert x.dtype == y.dtype and x.shape == y.shape
+        assert x.tobytes() == y.tobytes()
+
+
+def same_radar_data(a: rj.RadarData, b: rj.RadarData) -> None:
+    same_tree(a.signal, b.signal)
+    assert (a.scale, a.radar, a.snr_db) == (b.scale, b.radar, b.snr_db)
+    for name in ("azimuth", "polar"):
+        x, y = getattr(a.viewpoints, name), getattr(b.viewpoints, name)
+        assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
+
+
+# --- save / load ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("suffix", SUFFIXES)
+def test_radar_data_round_trip_is_exact_and_fits_the_same(measured, reference, tmp_path, suffix):
+    _, data = measured
+    path = rj.save(tmp_path / f"data{suffix}", data)
+    loaded = rj.load(path)
+    assert isinstance(loaded, rj.RadarData)
+    same_radar_data(loaded, data)
+    after = rj.fit(loaded, loaded.viewpoints, **GRID)
+    same_tree(after.scene, reference.scene)
+
+
+@pytest.mark.parametrize("suffix", SUFFIXES)
+def test_scenes_and_point_scatterers_round_trip_exactly(tmp_path, suffix, rng):
+    scene = rj.scenes.sphere(0.25, extent=1.0)
+    noisy = rj.Scene.from_array(
+        rng.normal(size=(9, 9, 9)) + 1j * rng.normal(size=(9, 9, 9)), extent=1.0
+    )
+    points = rj.PointScatterers(rng.uniform(-1, 1, (5, 3)), rng.normal(size=5) + 1j, extent=1.0)
+    for obj in (scene, noisy, points):
+        loaded = rj.load(rj.save(tmp_path / f"obj{suffix}", obj))
+        assert type(loaded) is type(obj)
+        same_tree(loaded, obj)
+    assert loaded.points.dtype == np.float64  # positions keep float64, as the GRT needs
+
+
+def test_the_files_say_what_they_hold(measured, tmp_path):
+    """Other tools can read the files: the header names the format, its version, the units,
+    and the radar; HDF5 datasets carry their units; frequencies and antenna positions are
+    there for tools that do not know rift_jax's geometry."""
+    import h5py
+
+    _, data = measured
+    rj.save(tmp_path / "data.npz", data)
+    rj.save(tmp_path / "data.h5", data)
+    with np.load(tmp_path / "data.npz", allow_pickle=False) as npz:
+        header = json.loads(str(npz["rift_jax_header"]))
+        np.testing.assert_array_equal(npz["radar/frequencies"], data.radar.frequencies)
+        tx, rx = rj.antenna_positions(
+            data.radar, data.viewpoints.azimuth[5], data.viewpoints.polar[5]
+        )
+        np.testing.assert_array_equal(npz["antennas/tx"][5], tx)
+        np.testing.assert_array_equal(npz["antennas/rx"][5], rx)
+    assert header["format"] == "rift_jax" and header["format_version"] == 1
+    assert header["rift_jax_version"] == rj.__version__ and header["kind"] == "RadarData"
+    assert header["units"] == {"length": "m", "frequency": "Hz", "angle": "rad", "time": "s"}
+    assert header["content"]["radar"]["f_min"] == data.radar.f_min
+    with h5py.File(tmp_path / "data.h5", "r") as h5:
+        assert h5.attrs["format"] == "rift_jax" and h5.attrs["kind"] == "RadarData"
+        assert json.loads(h5.attrs["rift_jax_header"]) == header
+        assert h5["radar/frequencies"].attrs["units"] == "Hz"
+        assert h5["viewpoints/azimuth"].attrs["units"] == "rad"
+        assert h5["antennas/tx"].attrs["units"] == "m"
+        assert h5["signal"].dtype == np.complex64
+
+
+def test_an_interrupted_save_keeps_the_previous_file(measured, tmp_path, monkeypatch):
+    scene, _ = measured
+    path = rj.save(tmp_path / "scene.h5", scene)
+    before = path.read_bytes()
+
+    def interrupted(source, target):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rj._io.os, "replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        rj.save(path, rj.Scene.empty(1.0, 0.5))
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.h5"]
+
+
+def _rewrite_npz(path, **changes):
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {name: npz[name] for name in npz.files}
+    for name, value in changes.items():
+        if value is None:
+            arrays.pop(name)
+        else:
+            arrays[name] = value
+    np.savez(path, **arrays)
+
+
+def test_files_of_another_format_or_version_are_refused_by_name(measured, tmp_path):
+    _, data = measured
+    path = rj.save(tmp_path / "data.npz", data)
+    with np.load(path, allow_pickle=False) as npz:
+        header = json.loads(str(npz["rift_jax_header"]))
+
+    newer = {**header, "format_version": 2, "rift_jax_version": "9.0"}
+    _rewrite_npz(path, rift_jax_header=np.array(json.dumps(newer)))
+    with pytest.raises(ValueError, match=r"format version 2 \(written by rift_jax 9.0\).*reads"):
+        rj.load(path)
+    _rewrite_npz(path, rift_jax_header=np.array(json.dumps(header)), signal=None)
+    with pytest.raises(ValueError, match="load: `path` .* has no array 'signal'"):
+        rj.load(path)
+    _rewrite_npz(path, rift_jax_header=None)
+    with pytest.raises(ValueError, match="is not a rift_jax file"):
+        rj.load(path)
+    other = {**header, "format": "someone_else"}
+    _rewrite_npz(path, rift_jax_header=np.array(json.dumps(other)))
+    with pytest.raises(ValueError, match="format 'someone_else'"):
+        rj.load(path)
+    (tmp_path / "junk.h5").write_text("not HDF5")
+    with pytest.raises(ValueError, match="is not a readable HDF5 file"):
+        rj.load(tmp_path / "junk.h5")
+    public = write_rift_public(tmp_path / "public.npz", data)
+    with pytest.raises(ValueError, match="authors' layout: read it with rift_jax.load_rift_public"):
+        rj.load(public)
+
+
+# --- The RIFT authors' layout ---------------------------------------------------------
+
+
+def write_rift_public(path, data: rj.RadarData, *, phase_sign=-1, chirps=2, antennas=None):
+    """``data`` written as the RIFT authors' NPZ files are (baodaqian/RIFT_Public,
+    rift/npz_dataset.py): response[view, tx, rx, chirp, adc] of the raw signal with phase
+    exp(phase_sign·j·k·R), absolute antenna and array-centre positions, and the radar in
+    ``metadata_json`` (the frequency of ADC sample i is fc − B/2 + i·B/n)."""
+    radar, views = data.radar, data.viewpoints
+    n = radar.n_frequencies
+    bandwidth = (radar.f_max - radar.f_min) * n / (n - 1)
+    a, p = views.azimuth, views.polar
+    centres = radar.distance * np.stack(
+        [np.sin(p) * np.cos(a), np.sin(p) * np.sin(a), np.cos(p)], axis=1
+    )
+    if antennas is None:
+        antennas = [rj.antenna_positions(radar, *ap) for ap in zip(a, p, strict=True)]
+    raw = np.asarray(data.signal) * np.float32(data.scale)
+    raw = np.conj(raw) if phase_sign == -1 else raw
+    response = np.repeat(raw.transpose(0, 2, 3, 1)[:, :, :, None, :], chirps, axis=3)
+    meta = {
+        "target_type": "mesh",
+        "experiment": "sphere10k",
+        "target_position_m": [0.0, 0.0, 0.0],
+        "radar_fc_hz": radar.f_min + bandwidth / 2,
+        "radar_bandwidth_hz": bandwidth,
+        "num_adc_samples": n,
+        "num_chirps_cpi": chirps,
+        "scaled_max_extent_m": 1.0,
+    }
+    angles = np.degrees(np.stack([a, np.pi / 2 - p], axis=1))  # their (azimuth, elevation)
+    np.savez(
+        path,
+        response=response.astype(np.complex64),
+        tx_pos=np.stack([tx for tx, _ in antennas]),
+        rx_pos=np.stack([rx for _, rx in antennas]),
+        viewpoint_positions=centres,
+        viewpoint_angles=angles,
+        metadata_json=np.array(json.dumps(meta)),
+    )
+    return path
+
+
+@pytest.mark.parametrize("phase_sign", [-1, 1])
+def test_the_authors_layout_reads_back_as_the_data_and_reconstructs_alike(
+    measured, reference, tmp_path, phase_sign
+):
+    _, data = measured
+    path = write_rift_public(tmp_path / "public.npz", data, phase_sign=phase_sign)
+    read = rj.load_rift_public(path, phase_sign=phase_sign)
+    np.testing.assert_allclose(read.signal, data.signal, rtol=0, atol=2e-7)
+    assert read.scale == pytest.approx(data.scale, rel=1e-6)
+    np.testing.assert_allclose(read.radar.frequencies, data.radar.frequencies, rtol=1e-14)
+    for name in ("n_tx", "n_rx", "near_field"):
+        assert getattr(read.radar, name) == getattr(data.radar, name)
+    assert read.radar.spacing == pytest.approx(data.radar.spacing, rel=1e-12)
+    assert read.radar.distance == pytest.approx(data.radar.distance, rel=1e-14)
+    np.testing.assert_allclose(
+        np.exp(1j * read.viewpoints.azimuth), np.exp(1j * data.viewpoints.azimuth), atol=1e-14
+    )
+    np.testing.assert_allclose(read.viewpoints.polar, data.viewpoints.polar, atol=1e-14)
+
+    ours = reference.scene.reflectivity
+    theirs = rj.fit(read, read.viewpoints, **GRID).scene.reflectivity  # the same radar, to 1e-12
+    assert np.linalg.norm(theirs - ours) / np.linalg.norm(ours) < 1e-4
+
+
+def test_the_wrong_phase_sign_mirrors_the_data(measured, tmp_path):
+    _, data = measured
+    path = write_rift_public(tmp_path / "public.npz", data, phase_sign=-1)
+    read = rj.load_rift_public(path, phase_sign=1)
+    np.testing.assert_allclose(read.signal, np.conj(data.signal), atol=2e-7)
+
+
+def test_antennas_rift_jax_cannot_place_are_refused_by_name(measured, tmp_path):
+    """The authors' simulator puts centred TX and RX arrays on a cross (TX along the look-at
+    frame's 'right', RX along its 'up'); rift_jax's Radar is a one-sided L, and its GRT takes
+    no raw positions, so such a file is refused, saying which positions and by how much."""
+    _, data = measured
+    radar, views = data.radar, data.viewpoints
+    antennas = []
+    for a, p in zip(views.azimuth, views.polar, strict=True):
+        centre = radar.distance * np.array(
+            [np.sin(p) * np.cos(a), np.sin(p) * np.sin(a), np.cos(p)]
+        )
+        right = np.array([np.sin(a), -np.cos(a), 0.0])
+        up = np.array([-np.cos(p) * np.cos(a), -np.cos(p) * np.sin(a), np.sin(p)])
+        offsets = lambda n: (np.arange(n) - (n - 1) / 2)[:, None] * radar.spacing  # noqa: E731
+        antennas.append((centre + offsets(radar.n_tx) * right, centre + offsets(radar.n_rx) * up))
+    path = write_rift_public(tmp_path / "cross.npz", data, antennas=antennas)
+    with pytest.raises(ValueError, match=r"`tx_pos` does not follow rift_jax's antenna layout"):
+        rj.load_rift_public(path)
+
+
+def test_bad_files_in_the_authors_layout_are_refused_by_name(measured, tmp_path):
+    _, data = measured
+    path = write_rift_public(tmp_path / "public.npz", data)
+    with np.load(path, allow_pickle=False) as npz:
+        meta = json.loads(str(npz["metadata_json"]))
+        tx = npz["tx_pos"]
+
+    def rewritten(**changes):
+        copy = tmp_path / "copy.npz"
+        copy.write_bytes(path.read_bytes())
+        _rewrite_npz(copy, **changes)
+        return copy
+
+    cases = [
+        (dict(rx_pos=None), r"lacks \['rx_pos'\]"),
+        (dict(tx_pos=tx[:, :2]), r"`tx_pos` must have shape \(12, 3, 3\)"),
+        (dict(metadata_json=np.array("{")), "`metadata_json` is not JSON text"),
+        (dict(metadata_json=np.array("[1]")), "`metadata_json` must be a JSON object"),
+        (
+            dict(metadata_json=np.array(json.dumps({**meta, "num_adc_samples": 9}))),
+            "num_adc_samples=9 but `response` has 8",
+        ),
+        (
+            dict(metadata_json=np.array(json.dumps({**meta, "target_position_m": [0, 0, 1]}))),
+            "target_position_m=",
+        ),
+        (
+            dict(
+                metadata_json=np.array(json.dumps({k: meta[k] for k in meta if k != "radar_fc_hz"}))
+            ),
+            "`metadata_json` lacks 'radar_fc_hz'",
+        ),
+        (dict(viewpoint_positions=np.ones((12, 3)) * np.arange(12)[:, None]), "one `distance`"),
+    ]
+    for changes, message in cases:
+        with pytest.raises(ValueError, match=message):
+            rj.load_rift_public(rewritten(**changes))
+    pickled = tmp_path / "pickled.npz"
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {name: npz[name] for name in npz.files}
+    arrays["metadata_json"] = np.array([meta], dtype=object)
+    np.savez(pickled, **arrays)  # as the authors' older files: rift_jax never unpickles
+    with pytest.raises(ValueError, match="`metadata_json` .* is a pickled object array"):
+        rj.load_rift_public(pickled)
+    np.save(tmp_path / "one.npy", np.zeros(3))
+    with pytest.raises(ValueError, match="holds one array, not an NPZ archive"):
+        rj.load_rift_public(tmp_path / "one.npy")
+
+
+# --- PLY ------------------------------------------------------------------------------
+
+
+def test_ply_point_clouds_parse_with_the_right_points_and_values(reference, tmp_path, rng):
+    values = rng.normal(size=(9, 9, 9)) + 1j * rng.normal(size=(9, 9, 9))
+    values[np.abs(values) < 1.5] = 0
+    scene = rj.Scene.from_array(values, extent=1.0)
+    path = rj.export_ply(tmp_path / "scene.ply", scene, threshold=0.3)
+    ply = plyfile.PlyData.read(path)  # an independent, strict reader
+    assert ply.header.splitlines()[1] == "format binary_little_endian 1.0"
+    vertex = ply["vertex"]
+    rho = np.asarray(scene.reflectivity).ravel()
+    keep = np.abs(rho) >= 0.3 * np.abs(rho).max()
+    assert vertex.count == keep.sum() > 0
+    points = scene.points()[keep]
+    for i, axis in enumerate("xyz"):
+        np.testing.assert_array_equal(vertex[axis], points[:, i].astype(np.float32))
+    np.testing.assert_array_equal(vertex["magnitude"], np.abs(rho[keep]).astype(np.float32))
+    np.testing.assert_allclose(vertex["phase"], np.angle(rho[keep]), atol=1e-6)
+    brightest = np.argmax(vertex["magnitude"])
+    rgb = [vertex[c][brightest] for c in ("red", "green", "blue")]
+    assert rgb == [253, 231, 36]  # the top of viridis
+
+    # a FitResult exports its scene; point scatterers their points; zero gives no vertex
+    from_result = plyfile.PlyData.read(rj.export_ply(tmp_path / "fit.ply", reference))
+    from_scene = plyfile.PlyData.read(rj.export_ply(tmp_path / "own.ply", reference.scene))
+    assert from_result["vertex"].data.tobytes() == from_scene["vertex"].data.tobytes()
+    scatterers = rj.PointScatterers([[0.1, 0.2, 0.3], [-0.5, 0, 0]], [1.0, 0.01], extent=1.0)
+    cloud = plyfile.PlyData.read(rj.export_ply(tmp_path / "points.ply", scatterers))
+    assert cloud["vertex"].count == 1 and cloud["vertex"]["x"][0] == np.float32(0.1)
+    empty = plyfile.PlyData.read(rj.export_ply(tmp_path / "empty.ply", rj.Scene.empty(1.0, 0.5)))
+    assert empty["vertex"].count == 0
