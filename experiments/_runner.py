@@ -179,8 +179,9 @@ def fit_and_evaluate(scene, train, test, *, radar, method, granularity, seed, pr
     """Reconstruct ``scene`` from its signals at ``train`` on the inverse grid of
     ``granularity`` and score it against the truth at ``test``: (FitResult, metrics).
 
-    A RIFT run that diverges is scored on its best parameters before the divergence, and
-    ``metrics["diverged"]`` says where (the paper, too, reports its failed runs)."""
+    A run that diverges (least squares or RIFT) is scored on its best iterate before the
+    divergence; its ``result.stopped`` says ``Outcome.DIVERGED`` and where (the paper, too,
+    reports its failed runs)."""
     try:
         result = rj.fit(
             scene,
@@ -192,11 +193,10 @@ def fit_and_evaluate(scene, train, test, *, radar, method, granularity, seed, pr
             progress=progress,
             **options,
         )
-        diverged = None
-    except rj.solvers.TrainingDiverged as error:
-        result, diverged = error.result, str(error)
-        print(f"{method}: {diverged}; scoring the best parameters before it", flush=True)
-    return result, result.evaluate(scene, test) | {"diverged": diverged}
+    except rj.solvers.Diverged as error:
+        result = error.result
+        print(f"{method}: {error}; scoring the best iterate before it", flush=True)
+    return result, result.evaluate(scene, test)
 
 
 def history_record(history) -> dict:
@@ -345,7 +345,7 @@ def execute(
             "wall_seconds": wall,  # fit + evaluation (test signals of truth and prediction)
             "iterations": len(history),
             "seconds_per_iteration": seconds_per_iteration(result),
-            "stopped": str(result.stopped),
+            "stopped": result.stopped.to_json(),  # an Outcome and the iteration it came at
             "points": result.n_points,  # the operator's unknowns (the support's, if any)
             "active_points": result.stats.get("active_points"),  # RIFT's final active set
             # RIFT's collapse check: what was retried, and what still holds (None: nothing)
@@ -416,8 +416,13 @@ def table(rows, columns: list[tuple[str, Callable[[dict], str]]]) -> str:
 
 
 def run_cell(row: dict) -> str:
-    """The run's label, marked ‡ if its training diverged (scored before the divergence)."""
-    return row["run"] + (" ‡" if row.get("diverged") else "")
+    """The run's label, marked ‡ if it diverged (scored on its best iterate before that)."""
+    return row["run"] + (" ‡" if diverged(row) else "")
+
+
+def diverged(row: dict) -> bool:
+    """Whether the run of ``row`` diverged (`rift_jax.solvers.Outcome.DIVERGED`)."""
+    return rj.solvers.Stop.from_json(row["stopped"]).outcome is rj.solvers.Outcome.DIVERGED
 
 
 METRIC_COLUMNS = [

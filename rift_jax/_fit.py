@@ -24,7 +24,7 @@ from ._models import Field
 from ._operator import grt_operator
 from ._scenes import Scene, grid_size, nesting_granularities, shared_fraction
 from ._sharding import gathered
-from ._solvers import History, TrainingDiverged
+from ._solvers import Diverged, History, Stop
 from ._support import as_mask, estimate_support, mask_at, voxels_holding
 from ._synthesis import PointScatterers, RadarData, synthesize
 from ._validation import check_finite, check_instance, check_nonnegative_int
@@ -50,7 +50,7 @@ class FitResult:
     - `history`: per-iteration relative data residual and wall time (`History`).
     - `seconds`: wall time of the reconstruction, compilation included (not synthesis).
     - `method`, `options`: what ran, with which options.
-    - `stopped`: why it stopped (see `Solution`).
+    - `stopped`: why and when it stopped, a `rift_jax.solvers.Stop` (see `Solution`).
     - `radar`, `viewpoints`: the training geometry.
     - `stats`: solver-specific numbers.
     - `field`: for RIFT, the trained continuous scene (a `Field`, in the units of `scene`);
@@ -68,7 +68,7 @@ class FitResult:
     seconds: float
     method: str
     options: dict[str, Any]
-    stopped: str
+    stopped: Stop
     radar: Radar
     viewpoints: Viewpoints
     stats: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -201,8 +201,9 @@ def fit(
 
     **Returns:** a `FitResult`.
 
-    **Raises:** ValueError for bad input; `rift_jax.solvers.TrainingDiverged` (a ValueError)
-    if RIFT's loss becomes non-finite, with the best result so far in its ``.result``.
+    **Raises:** ValueError for bad input; `rift_jax.solvers.Diverged` (a ValueError)
+    if a run diverges (a non-finite residual, loss or gradient), with the best result so far
+    in its ``.result``.
     """
     if method not in METHODS:
         raise ValueError(f"fit: unknown `method` {method!r}; choose one of {sorted(METHODS)}.")
@@ -302,7 +303,7 @@ def fit(
 
     try:
         return result(solver(operator, signal, progress=progress, **solver_options))
-    except TrainingDiverged as error:
+    except Diverged as error:
         error.result = result(error.solution)
         raise
 

@@ -3,10 +3,12 @@ LSMR, Gauss-Newton, FISTA) and RIFT's INR training (`rift`, configured by a `Rec
 
 from ._solvers import RECIPES as RECIPES
 from ._solvers import CollapseWarning as CollapseWarning
+from ._solvers import Diverged as Diverged
 from ._solvers import History as History
+from ._solvers import Outcome as Outcome
 from ._solvers import Recipe as Recipe
 from ._solvers import Solution as Solution
-from ._solvers import TrainingDiverged as TrainingDiverged
+from ._solvers import Stop as Stop
 from ._solvers import diagnose as diagnose
 from ._solvers import fista as fista
 from ._solvers import gauss_newton as gauss_newton
@@ -24,7 +26,9 @@ __all__ = [
     "RECIPES",
     "Solution",
     "History",
-    "TrainingDiverged",
+    "Stop",
+    "Outcome",
+    "Diverged",
     "CollapseWarning",
     "diagnose",
 ]

@@ -127,7 +127,7 @@ def test_bad_input_gives_what_the_table_says(row, tmp_path, monkeypatch):
             result = eval(call, namespace)
         message = str(record[0].message)
         # the zero signal: a result, not an error; the row says which
-        assert f'stopped="{result.stopped}"' in row["comment"]
+        assert f"`stopped` saying `{result.stopped.outcome}`" in row["comment"]
         assert not np.any(np.asarray(result.scene.reflectivity))
     elif kind == "AttributeError":
         # only a missing module attribute (a scene builder): Python's own error

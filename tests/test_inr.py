@@ -212,7 +212,7 @@ def test_rift_overfits_a_tiny_scene(tiny):
         scene, train, radar=radar, method="rift-n", granularity=0.5, epochs=300, progress=False
     )
     loss = result.history.loss
-    assert len(loss) == 300 and result.stopped == "epochs"
+    assert len(loss) == 300 and result.stopped == rj.solvers.Stop(rj.solvers.Outcome.BUDGET, 300)
     assert loss.min() < 1e-2 * loss[0]
     metrics = result.evaluate(scene, test)
     assert metrics["m_ssim"] > 0.9 and metrics["t_iou"] == 1.0
@@ -298,7 +298,7 @@ def test_non_finite_loss_stops_with_the_best_result(tiny):
         drift = jnp.abs(jnp.sum(jnp.abs(pred) ** 2) / jnp.sum(jnp.abs(target) ** 2) - 1)
         return rj.losses.robust_loss(pred, target) + jnp.where(drift > 1e-2, jnp.nan, 0.0)
 
-    with pytest.raises(rj.solvers.TrainingDiverged, match=r"loss was nan at epoch 2") as error:
+    with pytest.raises(rj.solvers.Diverged, match=r"loss was nan at epoch 2") as error:
         rj.fit(
             scene,
             train,
@@ -313,7 +313,8 @@ def test_non_finite_loss_stops_with_the_best_result(tiny):
     assert isinstance(error.value, ValueError)
     result = error.value.result
     assert result.stats["best_epoch"] == 1 and len(result.history.loss) == 1
-    assert result.stopped == "diverged at epoch 2" and result.field is not None
+    assert result.stopped == rj.solvers.Stop(rj.solvers.Outcome.DIVERGED, 2)
+    assert result.field is not None
     # the kept parameters are those whose loss was measured finite (epoch 1's, before its
     # update), not the ones that then gave NaN
     data = rj.synthesize(scene, train, radar)
@@ -323,15 +324,18 @@ def test_non_finite_loss_stops_with_the_best_result(tiny):
 
 
 def test_patience_stops_a_converged_run_and_keeps_the_best(tiny):
-    """With `patience`, a run whose loss has stopped improving ends early ("tolerance") at
+    """With `patience`, a run whose loss has stopped improving ends early (`Outcome.CONVERGED`) at
     exactly the epoch a reference rule gives, keeps its best parameters, and equals the same
-    run without it up to there."""
+    run without it up to there. (A learning rate at which neither run collapses: a retry
+    would restart the history at another seed.)"""
     radar, scene, train, _ = tiny
     common = dict(radar=radar, method="rift-n", granularity=0.5, progress=False)
-    full = rj.fit(scene, train, epochs=60, learning_rate=1e-1, **common)
-    stopped = rj.fit(scene, train, epochs=60, learning_rate=1e-1, patience=3, **common)
+    common |= dict(epochs=60, learning_rate=2.5e-2)
+    full = rj.fit(scene, train, **common)
+    stopped = rj.fit(scene, train, patience=3, min_improvement=1e-2, **common)
+    assert full.stats["remedies"] == stopped.stats["remedies"] == []
 
-    def expected_stop(loss, patience=3, min_improvement=1e-3):
+    def expected_stop(loss, patience=3, min_improvement=1e-2):
         reference, improved = np.inf, 0
         for epoch, value in enumerate(loss, start=1):
             if value < (1 - min_improvement) * reference:
@@ -341,12 +345,14 @@ def test_patience_stops_a_converged_run_and_keeps_the_best(tiny):
         return len(loss)
 
     run = stopped.stats["epochs_run"]
-    assert stopped.stopped == "tolerance" and run == expected_stop(full.history.loss) < 60
+    assert stopped.stopped == rj.solvers.Stop(rj.solvers.Outcome.CONVERGED, run)
+    assert run == expected_stop(full.history.loss) < 60
     np.testing.assert_array_equal(stopped.history.loss, full.history.loss[:run])
     loss = stopped.history.loss
     assert stopped.stats["best_epoch"] == int(np.argmin(loss)) + 1
     assert stopped.stats["best_loss"] == pytest.approx(loss.min())
-    assert full.stopped == "epochs" and full.stats["epochs_run"] == 60
+    assert full.stopped == rj.solvers.Stop(rj.solvers.Outcome.BUDGET, 60)
+    assert full.stats["epochs_run"] == 60
     with pytest.raises(ValueError, match="patience"):
         rj.solvers.Recipe(patience=0)
 
@@ -429,7 +435,7 @@ def test_coarse_to_fine_on_a_support_after_patience_and_a_coarse_divergence(smal
         drift = jnp.abs(jnp.sum(jnp.abs(pred) ** 2) / jnp.sum(jnp.abs(target) ** 2) - 1)
         return rj.losses.robust_loss(pred, target) + jnp.where(drift > 1e-2, jnp.nan, 0.0)
 
-    with pytest.raises(rj.solvers.TrainingDiverged, match="epoch 2") as error:
+    with pytest.raises(rj.solvers.Diverged, match="epoch 2") as error:
         rj.fit(
             scene, train, train_granularity=0.5, epochs=10, loss=fragile, batch_views=None,
             learning_rate=0.1, **common,
@@ -457,7 +463,8 @@ def test_holdout_views_are_never_trained_on_and_choose_the_best(small_cube):
     assert held.stats["best_epoch"] == int(np.argmin(residual)) + 1
     assert held.stats["best_loss"] == pytest.approx(min(residual))
     stopped = rj.fit(scene, train, holdout=4, patience=1, min_improvement=0.5, **common)
-    assert stopped.stopped == "tolerance" and stopped.stats["epochs_run"] < 12
+    assert stopped.stopped.outcome is rj.solvers.Outcome.CONVERGED
+    assert stopped.stats["epochs_run"] < 12
     with pytest.raises(ValueError, match="holdout"):
         rj.fit(scene, train, holdout=30, **common)
     with pytest.raises(ValueError, match="holdout"):

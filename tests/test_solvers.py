@@ -50,7 +50,7 @@ def test_agrees_with_float64_lstsq(problem, solutions, name):
 def test_history(solutions, name):
     solution = solutions[name]
     history = solution.history
-    assert solution.stopped == "iterations"
+    assert solution.stopped.outcome is rj.solvers.Outcome.BUDGET
     assert len(history) == history.seconds.shape[0] > 1
     assert np.all(np.diff(history.seconds) > 0)
     assert history.residual[-1] < 1e-2 * history.residual[0]
@@ -68,7 +68,7 @@ def test_tolerance_stops_early(problem):
     solution = solvers.lsmr(
         operator, signal, iterations=200, check_every=5, tol=0.5, progress=False
     )
-    assert solution.stopped == "tolerance"
+    assert solution.stopped.outcome is rj.solvers.Outcome.CONVERGED
     assert len(solution.history) < 40
 
 
@@ -122,7 +122,7 @@ def test_zero_signal_gives_zero_with_warning(problem, name):
     f, kw, _ = RUNS[name]
     with pytest.warns(UserWarning, match="all zero"):
         solution = f(operator, np.zeros_like(signal), progress=False, **kw)
-    assert solution.stopped == "zero signal"
+    assert solution.stopped.outcome is rj.solvers.Outcome.ZERO_SIGNAL
     assert not np.any(solution.rho)
 
 
@@ -218,3 +218,24 @@ def test_fista_tracks_its_iterates_residual_exactly(problem):
         direct /= np.linalg.norm(signal)
         assert len(solution.history) == iterations + 1  # the start and every iterate
         assert solution.history.residual[solution.stats["best"]] == pytest.approx(direct, rel=1e-4)
+
+
+def test_least_squares_divergence_is_reported_like_rift(problem, monkeypatch):
+    """FISTA given a step 10⁶× too long blows up; like a RIFT run, it raises `Diverged`
+    holding the best iterate before the divergence, whose `Stop` names the iteration, and
+    `fit` hands the same as a `FitResult`."""
+    import rift_jax._solvers.sparse as sparse
+
+    operator, signal, _ = problem
+    true_norm = sparse._power_norm
+    monkeypatch.setattr(sparse, "_power_norm", lambda *args: 1e-6 * true_norm(*args))
+    with pytest.raises(rj.solvers.Diverged, match="diverged") as error:
+        solvers.fista(operator, signal, iterations=50, sparsity=0.0, tol=0.0, progress=False)
+    solution = error.value.solution
+    stop = solution.stopped
+    assert stop.outcome is rj.solvers.Outcome.DIVERGED and 1 < stop.at < 50
+    assert len(solution.history) == stop.at - 1  # the iterations before it, all finite
+    assert np.all(np.isfinite(solution.history.residual))
+    assert np.all(np.isfinite(np.asarray(solution.rho)))
+    assert rj.solvers.Stop.from_json(stop.to_json()) == stop
+    assert str(stop) == f"diverged at iteration {stop.at}"

@@ -4,9 +4,11 @@ Each takes the `GRTOperator` from `rift_jax.grt_operator` and the measured signa
 returns a `Solution` (ρ on the operator's grid and a per-iteration `History`).
 """
 
+from ._solution import Diverged as Diverged
 from ._solution import History as History
+from ._solution import Outcome as Outcome
 from ._solution import Solution as Solution
-from ._solution import TrainingDiverged as TrainingDiverged
+from ._solution import Stop as Stop
 from .inr import RECIPES as RECIPES
 from .inr import CollapseWarning as CollapseWarning
 from .inr import Recipe as Recipe

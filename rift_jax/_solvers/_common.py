@@ -22,7 +22,7 @@ from .._operator import GRT, GRTOperator
 from .._precision import exact_jit
 from .._sharding import gathered, replicated
 from .._validation import check_finite, check_positive_int
-from ._solution import History, Solution
+from ._solution import History, Outcome, Solution, Stop
 
 RealPair = tuple[Float[Array, " *shape"], Float[Array, " *shape"]]
 
@@ -88,7 +88,7 @@ def zero_signal(where: str, signal: Array, x0: Array):
         f"{where}: the signal is all zero, so the reconstruction is the zero scene.",
         stacklevel=3,
     )
-    return Solution(x0, History(np.zeros(0), np.zeros(0)), "zero signal")
+    return Solution(x0, History(np.zeros(0), np.zeros(0)), Stop(Outcome.ZERO_SIGNAL, 0))
 
 
 def residual_of(fn: GRT, signal: Array, rho: Array) -> float:

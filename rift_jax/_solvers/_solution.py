@@ -8,6 +8,7 @@ the compiled code.
 from __future__ import annotations
 
 import dataclasses
+import enum
 import time
 from collections.abc import Callable
 from typing import Any
@@ -36,15 +37,44 @@ class History:
         return self.residual.shape[0]
 
 
+class Outcome(enum.Enum):
+    """Why a run ended; every solver, least squares and RIFT, reports one of these."""
+
+    BUDGET = "budget"  # every iteration (sweep, epoch) it was given ran
+    CONVERGED = "converged"  # progress stalled: `tol` (least squares) or `patience` (RIFT)
+    DIVERGED = "diverged"  # a non-finite residual, loss or gradient; the best before it is kept
+    ZERO_SIGNAL = "zero signal"  # all-zero data: ρ = 0, nothing ran
+
+
+@dataclasses.dataclass(frozen=True)
+class Stop:
+    """How a run ended: its `Outcome`, and ``at``, the iteration (sweep or epoch, from 1)
+    it ended in: the last one run, or the one that diverged (0 for a zero signal)."""
+
+    outcome: Outcome
+    at: int
+
+    def __str__(self) -> str:
+        if self.outcome is Outcome.ZERO_SIGNAL:
+            return self.outcome.value
+        return f"{self.outcome.value} at iteration {self.at}"
+
+    def to_json(self) -> dict:
+        return {"outcome": self.outcome.value, "at": self.at}
+
+    @classmethod
+    def from_json(cls, record: dict) -> Stop:
+        return cls(Outcome(record["outcome"]), int(record["at"]))
+
+
 @dataclasses.dataclass(frozen=True)
 class Solution:
     """What every solver returns.
 
     - `rho`: the reconstructed complex64 reflectivity, (n_points,), on the operator's grid.
     - `history`: a `History`.
-    - `stopped`: why the run ended: ``"iterations"`` (budget spent), ``"tolerance"``
-      (the residual stopped improving), ``"epochs"`` (INR: every epoch ran),
-      ``"diverged at epoch N"`` (INR, in `TrainingDiverged.solution`) or ``"zero signal"``.
+    - `stopped`: why and when the run ended, a `Stop` (a divergence is raised as
+      `Diverged`, whose ``.solution`` says ``Outcome.DIVERGED`` and where).
     - `stats`: solver-specific numbers (e.g. the step size used). The least-squares
       solvers return their best iterate, the one with the lowest data residual, and
       ``stats["best"]`` is its index in ``history`` (None: none beat the start, which is
@@ -55,7 +85,7 @@ class Solution:
 
     rho: Complex[Array, " n_points"]
     history: History
-    stopped: str
+    stopped: Stop
     stats: dict[str, Any] = dataclasses.field(default_factory=dict)
     field: Any = None
 
@@ -64,10 +94,11 @@ class Solution:
         return float(self.history.seconds[-1]) if len(self.history) else 0.0
 
 
-class TrainingDiverged(ValueError):
-    """Training met a non-finite loss or gradient. ``.solution`` holds the best `Solution`
-    reached before that (and, raised from `rift_jax.fit`, ``.result`` the `FitResult`), so
-    the run so far is not lost."""
+class Diverged(ValueError):
+    """A run met a non-finite residual (least squares) or loss or gradient (RIFT).
+    ``.solution`` holds the best `Solution` reached before that, its `stopped` saying
+    ``Outcome.DIVERGED`` and the iteration (and, raised from `rift_jax.fit`, ``.result`` the
+    `FitResult`), so the run so far is not lost."""
 
     def __init__(self, message: str, solution: Solution):
         super().__init__(message)
@@ -90,7 +121,7 @@ def iterate(
     start_residual: float = 1.0,
 ) -> tuple[Array, History, str, dict]:
     """Call ``carry, residual = step(carry)`` up to ``iterations`` times and return the best
-    iterate: ``(ρ, history, stopped, {"best": k})``.
+    iterate: ``(ρ, history, stop, {"best": k})``.
 
     ``residual`` must be the relative data residual of ``image(carry)``, the ρ that `step`
     returned, so that the ρ returned here is the one with the lowest residual seen, the
@@ -102,12 +133,13 @@ def iterate(
     than the best before them by a factor ``1 - tol``: the run has stagnated (three, not one,
     because Kaczmarz's and FISTA's residuals are not monotone). ``tol=0`` runs the whole
     budget.
-    A non-finite residual stops the run with a ValueError naming the iteration. The progress
+    A non-finite residual raises `Diverged` naming the iteration; its ``.solution`` holds the
+    best iterate before it. The progress
     bar appears only for runs longer than two seconds.
     """
     residuals, seconds = [], []
     best, best_residual, best_index = image(carry), start_residual, None
-    stopped = "iterations"
+    stopped = None
     start = time.perf_counter()
     with tqdm(total=iterations, desc=desc, disable=not progress, delay=2.0, leave=False) as bar:
         for k in range(iterations):
@@ -115,9 +147,12 @@ def iterate(
             residual = float(jax.block_until_ready(residual))
             seconds.append(time.perf_counter() - start)
             if not np.isfinite(residual):
-                raise ValueError(
+                history = History(np.asarray(residuals), np.asarray(seconds[:-1]))
+                raise Diverged(
                     f"{desc}: the data residual became {residual} at iteration {k + 1}; the "
-                    "iteration diverged (for FISTA, lower the step size)."
+                    "iteration diverged (for FISTA, lower the step size). The best iterate "
+                    "before it is kept in this error's `.solution` (and `.result` from fit).",
+                    Solution(best, history, Stop(Outcome.DIVERGED, k + 1), {"best": best_index}),
                 )
             residuals.append(residual)
             if residual < best_residual:
@@ -129,7 +164,8 @@ def iterate(
                 and k >= _PATIENCE
                 and min(residuals[-_PATIENCE:]) >= (1 - tol) * min(residuals[:-_PATIENCE])
             ):
-                stopped = "tolerance"
+                stopped = Stop(Outcome.CONVERGED, k + 1)
                 break
     history = History(np.asarray(residuals), np.asarray(seconds))
+    stopped = stopped or Stop(Outcome.BUDGET, len(residuals))
     return best, history, stopped, {"best": best_index}

@@ -41,7 +41,7 @@ from .._validation import (
     check_positive_int,
 )
 from ._common import as_complex, as_pair, check_problem, realified, zero_signal
-from ._solution import History, Solution, TrainingDiverged
+from ._solution import Diverged, History, Outcome, Solution, Stop
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,7 +64,7 @@ class Recipe:
       the data's energy (False: fixed at 1, as the paper).
     - `patience`: stop early when the epoch's mean training loss has not improved on the best
       so far by a relative `min_improvement` for this many epochs (None: run every epoch).
-      The run then ends with ``stopped="tolerance"``, as the least-squares solvers do, and
+      The run then ends with ``Outcome.CONVERGED``, as the least-squares solvers do, and
       keeps the best parameters. At the paper's scale the loss is flat after ~20 of 100
       epochs, so a `patience` of 10 can save most of a run.
     - `min_improvement`: see `patience`.
@@ -200,9 +200,9 @@ def rift(
     is one), or with a `holdout`, of the epoch whose end left the lowest held-out residual
     (``stats["best_loss"]`` is then that residual); its `rho` is its rendering. The history
     has per epoch the mean loss and the relative residual ‖y − Aρ‖/‖y‖ accumulated over the
-    epoch's minibatches (each at its step's parameters). ``stopped`` is ``"epochs"``, or
-    ``"tolerance"`` when the recipe's `patience` ended the run early
-    (``stats["epochs_run"]`` epochs).
+    epoch's minibatches (each at its step's parameters). ``stopped`` is a `Stop`:
+    ``Outcome.BUDGET`` after every epoch, or ``Outcome.CONVERGED`` when the recipe's
+    `patience` ended the run early (``stats["epochs_run"]`` epochs).
     ``stats["active_points"]`` counts the points the returned field was trained on.
 
     **Collapse.** After training, the run is checked for the ways an INR fails without a
@@ -216,7 +216,7 @@ def rift(
     (None: nothing), and ``stats["attempts"]`` how many ran. If every attempt collapsed,
     the one with the lowest best loss is returned and a `CollapseWarning` says so.
 
-    **Raises:** `TrainingDiverged` (a ValueError) if a loss or gradient becomes non-finite,
+    **Raises:** `Diverged` (a ValueError) if a loss or gradient becomes non-finite,
     naming the epoch; its ``.solution`` holds the best parameters so far.
     """
     name = model if isinstance(model, str) else type(model).__name__
@@ -228,7 +228,7 @@ def rift(
         fine_epochs=fine_epochs, progress=progress,
     )  # fmt: skip
     solution = train(recipe=recipe, seed=seed)
-    if solution.stopped == "zero signal":
+    if solution.stopped.outcome is Outcome.ZERO_SIGNAL:
         return solution
 
     def checked(solution: Solution) -> tuple[Solution, str | None]:
@@ -423,7 +423,7 @@ def _train(
     best_set = (candidates, active, False)
     reference, improved_epoch = math.inf, 0
 
-    def result(stopped: str) -> Solution:
+    def result(stopped: Stop) -> Solution:
         best = eqx.combine(best_params, static)
         history = History(np.asarray(residuals), np.asarray(seconds), np.asarray(losses))
         trained_on, trained_active, fine = best_set
@@ -511,12 +511,12 @@ def _train(
                     if not np.isfinite(step_losses[k])
                     else "the gradient held NaN/inf values"
                 )
-                raise TrainingDiverged(
+                raise Diverged(
                     f"{where}: {what} at epoch {epoch} (step {k + 1} of {steps}); training "
                     f"stopped. The parameters of epoch {best_epoch} (loss {best_loss:.4g}) "
                     "are kept in this error's `.solution` (and `.result` from fit). Try a "
                     "lower learning_rate or a clip_norm.",
-                    result(f"diverged at epoch {epoch}"),
+                    result(Stop(Outcome.DIVERGED, epoch)),
                 )
             losses.append(float(np.mean(step_losses)))
             residuals.append(math.sqrt(float(np.sum(step_residuals)) / energy[batches].sum()))
@@ -546,11 +546,11 @@ def _train(
             bar.update()
             if recipe.patience is not None and epoch - improved_epoch >= recipe.patience:
                 if switch is None or epoch >= switch:
-                    return result("tolerance")
+                    return result(Stop(Outcome.CONVERGED, epoch))
                 # the coarse stage has converged: the fine one starts now, with its epochs
                 switch, last = epoch + 1, epoch + fine_epochs
                 bar.total = last
-    return result("epochs")
+    return result(Stop(Outcome.BUDGET, epoch))
 
 
 class _Candidates:
