@@ -17,17 +17,23 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import tempfile
 import zipfile
 from pathlib import Path
 from typing import Any
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._fit import FitResult
 from ._geometry import C0, Radar, Viewpoints, antenna_positions
+from ._models import Field, RiftN, RiftS
 from ._scenes import Scene
+from ._solvers import History, Outcome, Recipe, Stop
 from ._synthesis import PointScatterers, RadarData
 
 FORMAT = "rift_jax"
@@ -59,7 +65,7 @@ def _version() -> str:
 # --- Public API -------------------------------------------------------------------------
 
 
-def save(path: str | os.PathLike, obj: RadarData | Scene | PointScatterers) -> Path:
+def save(path: str | os.PathLike, obj: RadarData | Scene | PointScatterers | FitResult) -> Path:
     """Write ``obj`` to ``path``, as NPZ (``.npz``) or HDF5 (``.h5``, ``.hdf5``) by its
     suffix; atomically (a temporary file in the same folder, renamed into place), so an
     interrupted save leaves the previous file whole.
@@ -72,7 +78,11 @@ def save(path: str | os.PathLike, obj: RadarData | Scene | PointScatterers) -> P
     - `path`: where to write; its folder must exist.
     - `obj`: a `RadarData` (signal, scale, noise level, `Radar`, `Viewpoints`, and for other
       tools each view's frequencies and antenna positions), a `Scene`, `PointScatterers`,
-      or a `FitResult`.
+      or a `FitResult`: everything it holds, RIFT's trained `Field` too (its weights, and
+      the sizes that rebuild its model). A FitResult's `options` and `stats` are stored as
+      JSON with their arrays beside it; what JSON cannot hold is refused by name (a
+      callable loss, your own `AbstractINR`: give the result other options with
+      ``dataclasses.replace(result, options=...)``).
 
     **Returns:** the path written.
     """
@@ -93,13 +103,14 @@ def save(path: str | os.PathLike, obj: RadarData | Scene | PointScatterers) -> P
     return path
 
 
-def load(path: str | os.PathLike) -> RadarData | Scene | PointScatterers:
+def load(path: str | os.PathLike) -> RadarData | Scene | PointScatterers | FitResult:
     """Read what `save` wrote: a `RadarData`, `Scene`, `PointScatterers` or `FitResult`
     equal to the one saved (the format from the suffix, as `save`).
 
     A loaded `RadarData` goes straight into `rift_jax.fit`
     (``rj.fit(data, data.viewpoints, extent=..., granularity=...)``), with the results it
-    gave before it was saved.
+    gave before it was saved; a loaded `FitResult` predicts, renders and evaluates as the
+    saved one did. Arrays in a FitResult's `options` and `stats` come back as NumPy arrays.
 
     **Raises:** ValueError naming what is wrong: a suffix other than ``.npz``, ``.h5`` or
     ``.hdf5``, a file of another format (for the RIFT authors' NPZ layout use
@@ -179,13 +190,14 @@ def _read_hdf5(path: Path) -> tuple[dict, dict[str, np.ndarray]]:
             f"load: `path` {str(path)!r} is not a readable HDF5 file ({error})."
         ) from error
     arrays = {}
+
+    def take(name, item):
+        if isinstance(item, h5py.Dataset):
+            arrays[name] = np.asarray(item[()])  # a 0-d dataset reads as a scalar otherwise
+
     with h5:
         text = h5.attrs.get(_HEADER)
-        h5.visititems(
-            lambda name, item: (
-                arrays.__setitem__(name, item[()]) if isinstance(item, h5py.Dataset) else None
-            )
-        )
+        h5.visititems(take)
     return _header(text, arrays, path), arrays
 
 
@@ -261,6 +273,8 @@ def _encode_object(obj) -> tuple[str, dict, dict[str, np.ndarray]]:
     if isinstance(obj, PointScatterers):
         arrays = {"points": np.asarray(obj.points), "reflectivity": np.asarray(obj.reflectivity)}
         return "PointScatterers", {"extent": obj.extent}, arrays
+    if isinstance(obj, FitResult):
+        return "FitResult", *_encode_result(obj)
     raise ValueError(
         "save: `obj` must be a rift_jax RadarData, Scene, PointScatterers or FitResult, got "
         f"{type(obj).__name__}."
@@ -282,6 +296,8 @@ def _decode_object(header: dict, arrays: dict, path: str):
         return _scene(take["reflectivity"], content, path)
     if kind == "PointScatterers":
         return PointScatterers(take["points"], take["reflectivity"], _get(content, "extent", path))
+    if kind == "FitResult":
+        return _decode_result(content, take, path)
     raise ValueError(
         f"load: `path` {path!r} holds a {kind!r}; this rift_jax ({_version()}) reads "
         "RadarData, Scene, PointScatterers and FitResult."
@@ -344,6 +360,207 @@ def _check_frequencies(radar: Radar, frequencies: np.ndarray, where: str) -> Non
             f"{where}: its `radar/frequencies` are not its radar's ({radar.n_frequencies} on "
             f"[{radar.f_min:g}, {radar.f_max:g}] Hz, endpoints included)."
         )
+
+
+# --- FitResult --------------------------------------------------------------------------
+
+
+def _encode_result(result: FitResult) -> tuple[dict, dict[str, np.ndarray]]:
+    history = result.history
+    arrays = {
+        "scene/reflectivity": np.asarray(result.scene.reflectivity),
+        "history/residual": np.asarray(history.residual),
+        "history/seconds": np.asarray(history.seconds),
+    }
+    if history.loss is not None:
+        arrays["history/loss"] = np.asarray(history.loss)
+    arrays |= _geometry_arrays(result.radar, result.viewpoints, antennas=False)
+    if result.support is not None:
+        arrays["support"] = np.asarray(result.support)
+    if result.trained is not None:
+        arrays["trained/reflectivity"] = np.asarray(result.trained.reflectivity)
+    stop = result.stopped
+    content = {
+        "scene": _grid_record(result.scene),
+        "seconds": float(result.seconds),
+        "method": result.method,
+        "options": _encode_value(result.options, "options", arrays),
+        "stopped": {"outcome": stop.outcome.value, "at": stop.at},
+        "radar": _radar_record(result.radar),
+        "stats": _encode_value(result.stats, "stats", arrays),
+        "history_loss": history.loss is not None,
+        "support": result.support is not None,
+        "trained": None if result.trained is None else _grid_record(result.trained),
+        "field": None if result.field is None else _encode_module(result.field, "field", arrays),
+    }
+    return content, arrays
+
+
+def _decode_result(content: dict, take: _Arrays, path: str) -> FitResult:
+    def get(key):
+        return _get(content, key, path)
+
+    loss = take["history/loss"] if get("history_loss") else None
+    history = History(take["history/residual"], take["history/seconds"], loss)
+    radar = _radar(get("radar"), path)
+    _check_frequencies(radar, take["radar/frequencies"], f"load: `path` {path!r}")
+    stopped = get("stopped")
+    try:
+        stop = Stop(Outcome(stopped["outcome"]), stopped["at"])
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"load: `path` {path!r} has an unknown `stopped` {stopped!r}.") from error
+    trained = get("trained")
+    return FitResult(
+        scene=_scene(take["scene/reflectivity"], get("scene"), path),
+        history=history,
+        seconds=get("seconds"),
+        method=get("method"),
+        options=_decode_value(get("options"), take, path),
+        stopped=stop,
+        radar=radar,
+        viewpoints=_viewpoints(take, path),
+        stats=_decode_value(get("stats"), take, path),
+        field=None if get("field") is None else _decode_module(get("field"), take, path),
+        support=take["support"] if get("support") else None,
+        trained=None if trained is None else _scene(take["trained/reflectivity"], trained, path),
+    )
+
+
+# RIFT's models: the sizes that rebuild each one's skeleton, so that the stored weights
+# can be put back into it (as eqx.tree_deserialise_leaves does; here each weight is a named
+# array, readable by other tools, and checked against the skeleton's shape and dtype).
+_MODELS = {"RiftN": RiftN, "RiftS": RiftS}
+
+
+def _model_record(model) -> dict:
+    if type(model) not in (RiftN, RiftS):
+        raise ValueError(
+            f"save: a FitResult's field or options hold a {type(model).__name__} model; only "
+            "RiftN and RiftS are saved (their sizes rebuild the model to load the weights into)."
+        )
+    record = {
+        "model": type(model).__name__,
+        "width": int(model.output.in_features),
+        "depth": len(model.hidden),
+    }
+    if isinstance(model, RiftN):
+        return record | {"negative_slope": model.negative_slope}
+    return record | {"omega_0": model.omega_0}
+
+
+def _weights(module) -> list[tuple[str, Any]]:
+    """(name, array) for each array leaf, named by its path (``model.hidden[0].weight``)."""
+    flat, _ = jax.tree_util.tree_flatten_with_path(eqx.filter(module, eqx.is_array))
+    return [(jax.tree_util.keystr(key).lstrip("."), leaf) for key, leaf in flat]
+
+
+def _encode_module(module, name: str, arrays: dict) -> dict:
+    """A `Field` or a RiftN / RiftS: the sizes that rebuild it, its weights into ``arrays``."""
+    if isinstance(module, Field):
+        record = {"kind": "Field", "extent": module.extent, **_model_record(module.model)}
+    else:
+        record = {"kind": "model", **_model_record(module)}
+    for key, leaf in _weights(module):
+        arrays[f"{name}/{key}"] = np.asarray(leaf)
+    return record | {"arrays": name}
+
+
+def _decode_module(record: dict, take: _Arrays, path: str):
+    def get(key):
+        return _get(record, key, path)
+
+    cls = _MODELS.get(get("model"))
+    if cls is None:
+        raise ValueError(
+            f"load: `path` {path!r} holds a model {get('model')!r}; rift_jax "
+            f"rebuilds {sorted(_MODELS)}."
+        )
+    option = "negative_slope" if cls is RiftN else "omega_0"
+    model = cls(
+        width=get("width"), depth=get("depth"), key=jax.random.key(0), **{option: get(option)}
+    )
+    skeleton = Field(model, get("extent")) if get("kind") == "Field" else model
+    weights, static = eqx.partition(skeleton, eqx.is_array)
+    flat, treedef = jax.tree_util.tree_flatten_with_path(weights)
+    leaves = []
+    for key, leaf in flat:
+        name = f"{get('arrays')}/{jax.tree_util.keystr(key).lstrip('.')}"
+        stored = take[name]
+        if stored.shape != leaf.shape or stored.dtype != leaf.dtype:
+            raise ValueError(
+                f"load: `path` {path!r} holds {name!r} as {stored.dtype} {stored.shape}, but the "
+                f"{get('model')} it describes has {leaf.dtype} {leaf.shape} there."
+            )
+        leaves.append(jnp.asarray(stored))
+    return eqx.combine(jax.tree_util.tree_unflatten(treedef, leaves), static)
+
+
+# options and stats: JSON, with a tag for each value JSON has no word for
+def _encode_value(value, name: str, arrays: dict):
+    if value is None or isinstance(value, bool | str):
+        return value
+    if isinstance(value, np.generic):  # keeps its NumPy type: float32 stays float32
+        return {"$numpy": value.dtype.name, "value": _encode_value(value.item(), name, arrays)}
+    if isinstance(value, int):
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else {"$float": repr(value)}
+    if isinstance(value, complex):
+        return {
+            "$complex": [_encode_value(part, name, arrays) for part in (value.real, value.imag)]
+        }
+    if isinstance(value, list):
+        return [_encode_value(v, f"{name}/{i}", arrays) for i, v in enumerate(value)]
+    if isinstance(value, tuple):
+        return {"$tuple": [_encode_value(v, f"{name}/{i}", arrays) for i, v in enumerate(value)]}
+    if isinstance(value, dict):
+        if not all(isinstance(key, str) and "/" not in key for key in value):
+            raise ValueError(
+                f"save: the keys of `{name}` must be strings without '/' to be "
+                f"saved, got {list(value)!r}."
+            )
+        return {key: _encode_value(v, f"{name}/{key}", arrays) for key, v in value.items()}
+    if isinstance(value, np.ndarray | jax.Array):
+        arrays[name] = np.asarray(value)
+        return {"$array": name}
+    if isinstance(value, Recipe):
+        fields = {f.name: getattr(value, f.name) for f in dataclasses.fields(Recipe)}
+        return {"$recipe": _encode_value(fields, name, arrays)}
+    if isinstance(value, Field | RiftN | RiftS):
+        return {"$module": _encode_module(value, name, arrays)}
+    raise ValueError(
+        f"save: `{name}` is a {type(value).__name__}, which a file cannot hold (only numbers, "
+        "strings, lists, dicts, arrays, Recipes, Fields and RiftN / RiftS models); give the "
+        "result other options with dataclasses.replace(result, options=...)."
+    )
+
+
+def _decode_value(value, take: _Arrays, path: str):
+    if isinstance(value, list):
+        return [_decode_value(v, take, path) for v in value]
+    if not isinstance(value, dict):
+        return value
+    tags = [key for key in value if key.startswith("$")]
+    if not tags:
+        return {key: _decode_value(v, take, path) for key, v in value.items()}
+    tag = tags[0]
+    if tag == "$numpy":
+        return np.dtype(value[tag]).type(_decode_value(value["value"], take, path))
+    if tag == "$float":
+        return float(value[tag])
+    if tag == "$complex":
+        return complex(*(_decode_value(part, take, path) for part in value[tag]))
+    if tag == "$tuple":
+        return tuple(_decode_value(v, take, path) for v in value[tag])
+    if tag == "$array":
+        return take[value[tag]]
+    if tag == "$recipe":
+        return Recipe(**_decode_value(value[tag], take, path))
+    if tag == "$module":
+        return _decode_module(value[tag], take, path)
+    raise ValueError(
+        f"load: `path` {path!r} holds an unknown value {tag!r}: written by a newer rift_jax?"
+    )
 
 
 # --- The RIFT authors' public NPZ layout ------------------------------------------------
