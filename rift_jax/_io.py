@@ -98,7 +98,9 @@ def save(path: str | os.PathLike, obj: RadarData | Scene | PointScatterers | Fit
     }
     text = json.dumps(header, allow_nan=False)  # strict JSON: other tools read it too
     if not path.parent.is_dir():
-        raise ValueError(f"save: the folder of `path` does not exist: {str(path.parent)!r}.")
+        raise ValueError(
+            f"save: `path` must be in an existing folder; {str(path.parent)!r} is not."
+        )
     _write_atomic(path, lambda f: _WRITERS[container](f, text, header, arrays))
     return path
 
@@ -806,7 +808,9 @@ def export_ply(
     peak = float(magnitude.max()) if magnitude.size else 0.0
     keep = magnitude >= threshold * peak if peak > 0 else np.zeros(magnitude.shape, bool)
     if not path.parent.is_dir():
-        raise ValueError(f"{where}: the folder of `path` does not exist: {str(path.parent)!r}.")
+        raise ValueError(
+            f"{where}: `path` must be in an existing folder; {str(path.parent)!r} is not."
+        )
     _write_atomic(path, lambda f: f.write(_ply_bytes(points[keep], rho[keep], peak)))
     return path
 

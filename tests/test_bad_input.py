@@ -66,6 +66,10 @@ def test_the_table_covers_every_entry_point_and_kind_of_bad_input():
         "rj.Radar(",
         "rj.Viewpoints(",
         "rj.estimate_support(",
+        "rj.save(",
+        "rj.load(",
+        "rj.load_rift_public(",
+        "rj.export_ply(",
         'cli("--out"',
     ):
         assert entry in calls, f"no row calls {entry}"
