@@ -213,7 +213,14 @@ def _header(text, arrays: dict, path: Path) -> dict:
             f"load: `path` {str(path)!r} is not a rift_jax file (it has no "
             f"{_HEADER!r} entry).{hint}"
         )
-    header = json.loads(str(np.asarray(text)[()]) if not isinstance(text, str) else text)
+    text = np.asarray(text)[()]  # a str, or a 0-d string array (NPZ)
+    text = text.decode("utf-8") if isinstance(text, bytes) else str(text)
+    try:
+        header = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise ValueError(
+            f"load: the {_HEADER!r} of `path` {str(path)!r} is not JSON ({error})."
+        ) from error
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise ValueError(
             f"load: `path` {str(path)!r} is not a rift_jax file (its header says "
@@ -516,14 +523,20 @@ def _encode_value(value, name: str, arrays: dict):
     if isinstance(value, tuple):
         return {"$tuple": [_encode_value(v, f"{name}/{i}", arrays) for i, v in enumerate(value)]}
     if isinstance(value, dict):
-        if not all(isinstance(key, str) and "/" not in key for key in value):
+        if not all(isinstance(k, str) and "/" not in k and k[:1] != "$" for k in value):
             raise ValueError(
-                f"save: the keys of `{name}` must be strings without '/' to be "
-                f"saved, got {list(value)!r}."
+                f"save: the keys of `{name}` must be strings, without '/' and not starting "
+                f"with '$' (the file's own tags), to be saved; got {list(value)!r}."
             )
         return {key: _encode_value(v, f"{name}/{key}", arrays) for key, v in value.items()}
     if isinstance(value, np.ndarray | jax.Array):
-        arrays[name] = np.asarray(value)
+        array = np.asarray(value)
+        if array.dtype.kind not in "biufc":  # HDF5 has no NumPy strings; objects need pickle
+            raise ValueError(
+                f"save: `{name}` is an array of {array.dtype}; files hold arrays of numbers "
+                "or booleans."
+            )
+        arrays[name] = array
         return {"$array": name}
     if isinstance(value, Recipe):
         fields = {f.name: getattr(value, f.name) for f in dataclasses.fields(Recipe)}

@@ -264,6 +264,11 @@ def test_what_a_file_cannot_hold_is_refused_by_name(reference, tmp_path):
         rj.save(tmp_path / "result.npz", custom)
     with pytest.raises(ValueError, match="keys of `stats` must be strings"):
         rj.save(tmp_path / "result.npz", dataclasses.replace(reference, stats={1: 2}))
+    with pytest.raises(ValueError, match="not starting with '\\$'"):
+        rj.save(tmp_path / "result.h5", dataclasses.replace(reference, stats={"$array": 2}))
+    names = dataclasses.replace(reference, stats={"names": np.array(["a", "b"])})
+    with pytest.raises(ValueError, match="`stats/names` is an array of <U1"):
+        rj.save(tmp_path / "result.h5", names)
     assert list(tmp_path.iterdir()) == []  # refused before anything was written
 
 
