@@ -258,6 +258,14 @@ def test_fit_results_round_trip_exactly_with_their_field(reference, tmp_path, su
     np.testing.assert_array_equal(loaded.render(0.25).reflectivity, full.render(0.25).reflectivity)
 
 
+def test_every_field_of_a_fit_result_has_its_place_in_the_file():
+    """A field added to FitResult must be saved too (rift_jax/_io.py, `_encode_result` and
+    `_decode_result`), or a loaded result would silently lose it."""
+    saved = {"scene", "history", "seconds", "method", "options", "stopped", "radar"}
+    saved |= {"viewpoints", "stats", "field", "support", "trained"}
+    assert {field.name for field in dataclasses.fields(rj.FitResult)} == saved
+
+
 def test_what_a_file_cannot_hold_is_refused_by_name(reference, tmp_path):
     custom = dataclasses.replace(reference, options={"loss": lambda pred, target: 0.0})
     with pytest.raises(ValueError, match="save: `options/loss` is a function"):
