@@ -12,6 +12,7 @@ import functools
 import inspect
 import time
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import jax.numpy as jnp
@@ -151,6 +152,7 @@ def fit(
     support: None | str | np.ndarray | Scene = None,
     seed: int = 0,
     progress: bool = True,
+    monitor: Callable[[int, float, Callable[[], Scene]], None] | None = None,
     **options,
 ) -> FitResult:
     """Reconstruct a scene from radar signals at ``viewpoints``.
@@ -191,6 +193,11 @@ def fit(
     - `seed`: seeds noise, Kaczmarz's block order, FISTA's power iteration, and RIFT's
       initialisation and viewpoint order.
     - `progress`: show a progress bar on runs longer than two seconds.
+    - `monitor`: ``monitor(iteration, seconds, current)`` after every iteration (sweep,
+      check, epoch), where ``current()`` is the best reconstruction so far as a `Scene` on
+      the inverse grid (for RIFT, the best field's rendering, zero off the support): what
+      stopping now would give, to draw run time against error. The time it takes is left
+      out of the run's clock and history.
     - `**options`: passed to the solver (``iterations``, ``tol``, ``relaxation``, ...; for
       RIFT ``recipe``, ``epochs``, ``loss``, ``prune``, ...; see `rift_jax.solvers`). RIFT
       also takes ``train_granularity``: coarse to fine, it trains the field for its last
@@ -209,7 +216,7 @@ def fit(
         raise ValueError(f"fit: unknown `method` {method!r}; choose one of {sorted(METHODS)}.")
     solver = METHODS[method]
     parameters = inspect.signature(solver).parameters
-    accepted = set(parameters) - {"operator", "signal", "progress", "overrides"}
+    accepted = set(parameters) - {"operator", "signal", "progress", "monitor", "overrides"}
     takes_any = any(p.kind is p.VAR_KEYWORD for p in parameters.values())  # checks its own
     if not takes_any and (unknown := set(options) - accepted):
         raise ValueError(
@@ -265,6 +272,31 @@ def fit(
             )
         solver_options = {**solver_options, "x0": x0[mask.ravel()]}
 
+    if monitor is not None:
+        if not callable(monitor):
+            raise ValueError(f"fit: `monitor` must be callable, got {type(monitor).__name__}.")
+
+        def current_scene(current) -> Scene:  # the solver's ρ (or RIFT's field) as a Scene
+            if isinstance(current, Field):
+                rho = np.asarray(current.scaled(scale).render(points))
+                if mask is not None:
+                    rho = np.where(mask.ravel(), rho, 0)
+            else:
+                rho = np.asarray(current) * scale
+                if mask is not None:
+                    rho, kept = np.zeros(mask.size, rho.dtype), rho
+                    rho[mask.ravel()] = kept
+            values = jnp.asarray(rho.reshape(grid.shape), jnp.complex64)
+            return Scene(values, extent, granularity)
+
+        def watch(iteration, seconds, current):
+            looked = time.perf_counter()
+            monitor(iteration, seconds, lambda: current_scene(current()))
+            watched[0] += time.perf_counter() - looked
+
+        solver_options = {**solver_options, "monitor": watch}
+    watched = [0.0]  # the monitor's seconds: not the reconstruction's
+
     def result(solution) -> FitResult:
         rho = np.asarray(solution.rho) * scale
         stats = dict(solution.stats)
@@ -285,7 +317,7 @@ def fit(
             leak = _support_leak(full, operator, signal, kept, mask)
             stats |= {"support_points": int(mask.sum()), "support_leak": leak}
         scene = Scene(jnp.asarray(rho.reshape(grid.shape), jnp.complex64), extent, granularity)
-        seconds = time.perf_counter() - start
+        seconds = time.perf_counter() - start - watched[0]
         return FitResult(
             scene,
             solution.history,

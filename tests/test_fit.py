@@ -110,3 +110,39 @@ def test_warns_when_the_inverse_grid_does_not_nest():
         rj.fit(odd, views, radar=radar, method="lsmr", iterations=1, progress=False)
     # of c = 2..8 (centred grids: c odd nests only with an even number of points): c = 5
     assert rj._scenes.nesting_granularities(2.0, 4 / 19) == pytest.approx([5 * 4 / 19])
+
+
+@pytest.mark.parametrize(
+    "method, options",
+    [("kaczmarz", {"iterations": 4}), ("fista", {"iterations": 4}), ("rift-n", {"epochs": 4})],
+)
+def test_monitor_sees_each_iteration_and_changes_nothing(method, options):
+    """`monitor` is called once per iteration with the best reconstruction so far as a
+    Scene on the inverse grid (for least squares the last one is the result), its time is
+    left out of the run's clock, and the result is bit-identical to a run without it."""
+    import time
+
+    radar = rj.Radar(n_frequencies=8, n_tx=4, n_rx=4)
+    scene = rj.scenes.cube(0.5, extent=1.0, edge=1.0)
+    train = rj.Viewpoints.grid(4, 4, polar_range=(0.3, 1.3))
+    common = dict(radar=radar, method=method, granularity=1.0, progress=False, **options)
+    seen = []
+
+    def monitor(iteration, seconds, current):
+        seen.append((iteration, seconds, current()))
+        time.sleep(0.5)  # a slow look: not the run's time
+
+    plain = rj.fit(scene, train, **common)  # compiles: the watched run's times are its own
+    watched = rj.fit(scene, train, monitor=monitor, **common)
+    np.testing.assert_array_equal(watched.scene.reflectivity, plain.scene.reflectivity)
+    runs = options.get("iterations", options.get("epochs"))  # (FISTA's history has one more:
+    assert [k for k, _, _ in seen] == list(range(1, runs + 1))  # its last iterate, checked after)
+    assert [t for _, t, _ in seen] == pytest.approx(watched.history.seconds.tolist()[: len(seen)])
+    assert np.all(np.diff(watched.history.seconds) < 0.5)
+    assert watched.seconds < watched.history.seconds[-1] + 0.5
+    assert all(s.shape == watched.scene.shape for _, _, s in seen)
+    if method == "kaczmarz":  # the best sweep so far is the one returned (FISTA may still
+        # return its last iterate, whose residual is known only after the loop)
+        np.testing.assert_array_equal(seen[-1][2].reflectivity, watched.scene.reflectivity)
+    with pytest.raises(ValueError, match="`monitor` must be callable"):
+        rj.fit(scene, train, monitor=1, **common)

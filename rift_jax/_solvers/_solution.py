@@ -106,6 +106,18 @@ class Diverged(ValueError):
         self.result = None
 
 
+Monitor = Callable[[int, float, Callable[[], Any]], None]
+"""``monitor(iteration, seconds, current)``: a look at a run while it runs (`fit`'s
+``monitor``); ``current()`` returns the best reconstruction so far."""
+
+
+def timed_out(monitor: Monitor, iteration: int, seconds: float, current) -> float:
+    """Call ``monitor`` and return the seconds it took, which the run's clock leaves out."""
+    start = time.perf_counter()
+    monitor(iteration, seconds, current)
+    return time.perf_counter() - start
+
+
 _PATIENCE = 3
 
 
@@ -119,7 +131,8 @@ def iterate(
     desc: str,
     image: Callable[[Any], Array],
     start_residual: float = 1.0,
-) -> tuple[Array, History, str, dict]:
+    monitor: Monitor | None = None,
+) -> tuple[Array, History, Stop, dict]:
     """Call ``carry, residual = step(carry)`` up to ``iterations`` times and return the best
     iterate: ``(ρ, history, stop, {"best": k})``.
 
@@ -133,6 +146,9 @@ def iterate(
     than the best before them by a factor ``1 - tol``: the run has stagnated (three, not one,
     because Kaczmarz's and FISTA's residuals are not monotone). ``tol=0`` runs the whole
     budget.
+    ``monitor(k, seconds, current)``, if given, is called after iteration k (from 1), with
+    ``current()`` giving the best iterate so far; the time it takes is left out of
+    ``seconds`` and of the history.
     A non-finite residual raises `Diverged` naming the iteration; its ``.solution`` holds the
     best iterate before it. The progress
     bar appears only for runs longer than two seconds.
@@ -157,6 +173,8 @@ def iterate(
             residuals.append(residual)
             if residual < best_residual:
                 best, best_residual, best_index = image(carry), residual, k
+            if monitor is not None:
+                start += timed_out(monitor, k + 1, seconds[-1], lambda best=best: best)
             bar.set_postfix(residual=f"{residual:.4g}", refresh=False)
             bar.update()
             if (

@@ -41,7 +41,7 @@ from .._validation import (
     check_positive_int,
 )
 from ._common import as_complex, as_pair, check_problem, realified, zero_signal
-from ._solution import Diverged, History, Outcome, Solution, Stop
+from ._solution import Diverged, History, Monitor, Outcome, Solution, Stop, timed_out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,6 +169,7 @@ def rift(
     fine_epochs: int | None = None,
     seed: int = 0,
     progress: bool = True,
+    monitor: Monitor | None = None,
     **overrides,
 ) -> Solution:
     """Train an INR so that the GRT of its rendering on the operator's grid fits ``signal``.
@@ -192,6 +193,9 @@ def rift(
       once. The signals are then the GRT of the field on these points (`stats["active"]`
       marks the ones trained last); `rho` is still its rendering on the operator's points.
     - `seed`: seeds the INR's initialisation and the order of the viewpoints.
+    - `monitor`: ``monitor(epoch, seconds, current)`` after each epoch, ``current()`` the
+      best `Field` so far (as `kaczmarz`'s; its time is not counted). The seconds run on
+      over a collapse's retries, whose epochs count from 1 again.
     - `**overrides`: any `Recipe` field, replacing the recipe's value (e.g. ``epochs=50``).
 
     **Returns:** a `Solution` whose `field` is the trained `Field` of the epoch with the
@@ -227,7 +231,21 @@ def rift(
         depth=depth, init=init, extent=extent, fine_points=fine_points,
         fine_epochs=fine_epochs, progress=progress,
     )  # fmt: skip
-    solution = train(recipe=recipe, seed=seed)
+    spent = [0.0]  # the seconds of the attempts so far: a monitor sees one clock over all
+
+    def attempt(**kwargs) -> Solution:
+        watch = None
+        if monitor is not None:
+            offset = spent[0]
+
+            def watch(epoch, seconds, current):
+                monitor(epoch, offset + seconds, current)
+
+        solution = train(**kwargs, monitor=watch)
+        spent[0] += solution.seconds
+        return solution
+
+    solution = attempt(recipe=recipe, seed=seed)
     if solution.stopped.outcome is Outcome.ZERO_SIGNAL:
         return solution
 
@@ -250,7 +268,7 @@ def rift(
             }
         )
         retry = dataclasses.replace(recipe, learning_rate=learning_rate)
-        attempts.append(checked(train(recipe=retry, seed=retry_seed)))
+        attempts.append(checked(attempt(recipe=retry, seed=retry_seed)))
     solution, why = attempts[-1]
     if why is not None:  # every attempt collapsed: the one that fitted best, said out loud
         solution, why = min(attempts, key=lambda attempt: attempt[0].stats["best_loss"])
@@ -342,6 +360,7 @@ def _train(
     fine_epochs: int | None,
     seed: int,
     progress: bool,
+    monitor: Monitor | None,
 ) -> Solution:
     """One training run of `rift` (no collapse check): see there."""
     signal, _ = check_problem(where, operator, signal, None, recipe.epochs)
@@ -537,6 +556,9 @@ def _train(
                 # per epoch, exactly the epoch's): never ones whose own measure is unknown
                 best_loss, best_params, best_epoch = progress_measure, measured, epoch
                 best_set = (candidates, active, switch is not None and epoch >= switch)
+            if monitor is not None:  # the best field so far, as `result` would return it
+                best_field = functools.partial(eqx.combine, best_params, static)
+                start += timed_out(monitor, epoch, seconds[-1], best_field)
             bar.set_postfix(
                 loss=f"{losses[-1]:.4g}",
                 best=f"{best_loss:.4g}",

@@ -14,7 +14,7 @@ from .._operator import GRT, GRTOperator
 from .._precision import Float64Pair, exact_jit
 from .._sharding import VOXELS, device_mesh, pad_leading
 from ._common import check_problem, relative, residual_of, zero_signal
-from ._solution import Solution, iterate
+from ._solution import Monitor, Solution, iterate
 
 
 def kaczmarz(
@@ -27,6 +27,7 @@ def kaczmarz(
     seed: int = 0,
     x0: Complex[Array, " n_points"] | None = None,
     progress: bool = True,
+    monitor: Monitor | None = None,
 ) -> Solution:
     """Block Kaczmarz with one viewpoint per block, in a random order.
 
@@ -70,6 +71,8 @@ def kaczmarz(
     - `seed`: seeds the block orders.
     - `x0`: starting ρ (default 0), e.g. a previous run's result to resume it.
     - `progress`: show a progress bar on runs longer than two seconds.
+    - `monitor`: ``monitor(sweep, seconds, current)`` after each sweep, ``current()`` the
+      best ρ so far; its time is not counted (for run time against error curves).
 
     **Returns:** a `Solution` holding the iterate with the lowest residual.
     ``history.residual[k]`` is ‖y − Aρ‖/‖y‖ of the iterate at the end of sweep k (an undone
@@ -110,6 +113,7 @@ def kaczmarz(
         iterations=iterations,
         tol=tol,
         progress=progress,
+        monitor=monitor,
         desc="kaczmarz",
         image=lambda x: x[:n_points],
         start_residual=best["residual"],

@@ -10,7 +10,7 @@ from .._operator import GRTOperator
 from .._precision import exact_jit
 from .._validation import check_positive_int
 from ._common import check_problem, relative, residual_of, zero_signal
-from ._solution import Solution, iterate
+from ._solution import Monitor, Solution, iterate
 
 
 def lsmr(
@@ -22,6 +22,7 @@ def lsmr(
     tol: float = 1e-3,
     x0: Complex[Array, " n_points"] | None = None,
     progress: bool = True,
+    monitor: Monitor | None = None,
 ) -> Solution:
     """Least squares min ‖y − Aρ‖ by `lineax.LSMR`, stopped early.
 
@@ -38,7 +39,7 @@ def lsmr(
 
     **Arguments:**
 
-    - `operator`, `signal`, `x0`, `progress`: as `kaczmarz`.
+    - `operator`, `signal`, `x0`, `progress`, `monitor`: as `kaczmarz`.
     - `iterations`: LSMR steps in all (rounded up to a multiple of ``check_every``).
     - `check_every`: LSMR steps between checks.
     - `tol`: stop when the residual stagnates (see `iterate`); 0 runs every step.
@@ -63,6 +64,7 @@ def lsmr(
         iterations=-(-iterations // steps),
         tol=tol,
         progress=progress,
+        monitor=monitor,
         desc="lsmr",
         image=lambda x: x,
         start_residual=residual_of(operator.fn, signal, x),

@@ -26,7 +26,7 @@ from ._common import (
     residual_of,
     zero_signal,
 )
-from ._solution import Solution, iterate
+from ._solution import Monitor, Solution, iterate
 
 
 def gauss_newton(
@@ -39,6 +39,7 @@ def gauss_newton(
     tol: float = 1e-3,
     x0: Complex[Array, " n_points"] | None = None,
     progress: bool = True,
+    monitor: Monitor | None = None,
 ) -> Solution:
     """min ½‖Aρ − y‖² by `optimistix.GaussNewton` (or `optimistix.LevenbergMarquardt` with
     ``damped=True``), each step's linear solve by `lineax.LSMR` for ``inner`` steps.
@@ -52,7 +53,7 @@ def gauss_newton(
 
     **Arguments:**
 
-    - `operator`, `signal`, `x0`, `progress`: as `kaczmarz`.
+    - `operator`, `signal`, `x0`, `progress`, `monitor`: as `kaczmarz`.
     - `iterations`: outer steps.
     - `inner`: LSMR steps per outer step.
     - `damped`: Levenberg-Marquardt (trust-region damping) instead of plain Gauss-Newton.
@@ -79,6 +80,7 @@ def gauss_newton(
         iterations=iterations,
         tol=tol,
         progress=progress,
+        monitor=monitor,
         desc=where,
         image=lambda carry: as_complex(carry[0]),
         start_residual=residual_of(operator.fn, signal, x),

@@ -19,7 +19,7 @@ from .._operator import GRTOperator
 from .._precision import exact_jit
 from .._validation import check_positive_int
 from ._common import as_complex, as_pair, check_problem, relative, residual_of, zero_signal
-from ._solution import History, Solution, iterate
+from ._solution import History, Monitor, Solution, iterate
 
 with warnings.catch_warnings():
     warnings.filterwarnings("ignore", message=".*no longer maintained", category=DeprecationWarning)
@@ -38,6 +38,7 @@ def fista(
     seed: int = 0,
     x0: Complex[Array, " n_points"] | None = None,
     progress: bool = True,
+    monitor: Monitor | None = None,
 ) -> Solution:
     """min ½‖Aρ − y‖² + λ‖ρ‖₁ by accelerated proximal gradient (FISTA,
     `jaxopt.ProximalGradient`), optionally with ρ real and ≥ 0.
@@ -54,7 +55,7 @@ def fista(
 
     **Arguments:**
 
-    - `operator`, `signal`, `x0`, `progress`: as `kaczmarz`.
+    - `operator`, `signal`, `x0`, `progress`, `monitor`: as `kaczmarz`.
     - `iterations`: FISTA steps.
     - `sparsity`: λ relative to max|Aᴴy|, in [0, 1).
     - `nonnegative`: constrain ρ to real, non-negative values.
@@ -96,22 +97,23 @@ def fista(
     # the carry: (ρ_{k+1}, state, r(ρ_k), t_k, ρ_k); before the first step t_{-1} = 1 and
     # m = 0: FISTA's first extrapolated point is its start
     carry = (pair, state, jnp.zeros_like(signal), jnp.ones((), jnp.float32), pair)
-    start = time.perf_counter()
     rho, history, stopped, stats = iterate(
         step,
         carry,
         iterations=iterations,
         tol=tol,
         progress=progress,
+        monitor=monitor,
         desc=where,
         image=lambda carry: as_complex(carry[4]),
         start_residual=float("inf"),  # the start's residual is the first step's record
     )
+    checked = time.perf_counter()  # the history's clock leaves a monitor's time out
     final = as_complex(last["pair"])
     residual = residual_of(fn, signal, final)
     if residual < history.residual.min():
         rho, stats = final, {"best": len(history)}
-    seconds = np.append(history.seconds, time.perf_counter() - start)
+    seconds = np.append(history.seconds, history.seconds[-1] + time.perf_counter() - checked)
     history = History(np.append(history.residual, residual), seconds)
     stats |= {"lambda": float(lam), "lipschitz": lipschitz, "nonnegative": nonnegative}
     return Solution(rho, history, stopped, stats)
