@@ -1,11 +1,15 @@
-"""The Python examples in docs/ run as written."""
+"""The Python examples in docs/ run as written, and the site builds."""
 
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
-DOCS = Path(__file__).resolve().parent.parent / "docs"
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = ROOT / "docs"
 BLOCKS = [
     (page.name, i, block)
     for page in sorted(DOCS.glob("*.md"))
@@ -20,3 +24,28 @@ def test_docs_example_runs(page, index, code):
 
 def test_docs_have_examples():
     assert BLOCKS, "no ```python blocks found under docs/"
+
+
+def test_site_builds(tmp_path):
+    """``mkdocs build --strict`` (the API pages from the docstrings, the examples' code and
+    figures, every link): ~6 s. Skipped where the docs requirements are not installed."""
+    pytest.importorskip("mkdocs")
+    pytest.importorskip("mkdocstrings_handlers.python")
+    build = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "NO_MKDOCS_2_WARNING": "1"},
+        timeout=300,
+    )
+    assert build.returncode == 0, build.stdout + build.stderr
+    for page in ["index.html", "quickstart/index.html", "api/index.html"]:
+        assert (tmp_path / page).is_file(), page
+    api = (tmp_path / "api" / "index.html").read_text()
+    assert 'id="rift_jax.fit"' in api and 'id="rift_jax.Scene"' in api
+    for example in ["compare_solvers", "unseen_viewpoints", "custom_scene"]:
+        page = (tmp_path / "examples" / example / "index.html").read_text()
+        text = re.sub(r"<[^>]+>", "", page)  # the code is highlighted: one span per token
+        assert f'src="../{example}.png"' in page and "def main(argv=None):" in text
+        assert (tmp_path / "examples" / f"{example}.png").is_file()
