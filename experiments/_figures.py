@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._output import save_figure
+from .runner import save_figure
 
 PLANES = {"x-y": 2, "x-z": 1, "y-z": 0}  # plane name -> the axis projected away
 

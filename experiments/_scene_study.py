@@ -10,10 +10,9 @@ from pathlib import Path
 
 import rift_jax as rj
 
-from . import _paper
+from . import runner
 from ._figures import mip_grid, training_curves
-from ._output import write_atomic
-from ._runner import (
+from .runner import (
     METRIC_COLUMNS,
     MODEL_LABELS,
     STRONGEST_LS,
@@ -23,6 +22,7 @@ from ._runner import (
     execute,
     run_cell,
     table,
+    write_atomic,
 )
 
 
@@ -80,7 +80,7 @@ def _verdicts(rows: list[dict], scenes, cfg: Config) -> list[str]:
     ssim = {(r["scene"], r["run"]): r["m_ssim"] for r in rows}
     paper = {
         (scene, run): values[0]
-        for scene, table in _paper.TABLES.items()
+        for scene, table in runner.TABLES.items()
         for run, values in table.items()
     }
     lines = []
@@ -123,7 +123,7 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path, 
         ("points (RIFT: trained)", _points_cell),
         (
             "paper m-SSIM / m-COS / t-IoU / p-RMSE",
-            lambda r: _paper.paper_row(r["scene"], r["run"]),
+            lambda r: runner.paper_row(r["scene"], r["run"]),
         ),
     ]
     text = "\n".join(

@@ -21,7 +21,7 @@ Scales:
 - paper: ±5 m at 0.2 / 0.4 m (26³ unknowns), Kaczmarz at most 100 sweeps, RIFT at most
   10,000 steps (100 epochs of RIFT-1000), each stopped once converged, every method on
   the support estimated from its data and RIFT on an active set
-  (`_runner.PAPER_STOPPING`).
+  (`runner.PAPER_STOPPING`).
 
 Writes results.json, results.md (our table beside the paper's, and its claims checked),
 reconstructions.npz, reconstructions_xy.png and _xz.png (maximum-intensity projections,
@@ -32,8 +32,8 @@ from __future__ import annotations
 
 from functools import partial
 
-from ._runner import PAPER_STOPPING, Budget, command
 from ._scene_study import Config, main
+from .runner import PAPER_STOPPING, Budget, command
 
 SCENES = ("parking_lot", "highway")
 SCALES = {

@@ -52,8 +52,7 @@ import numpy as np
 
 import rift_jax as rj
 
-from ._output import save_figure, write_atomic
-from ._runner import (
+from .runner import (
     METRIC_COLUMNS,
     Run,
     build_scene,
@@ -62,7 +61,9 @@ from ._runner import (
     execute,
     noise_name,
     rift_options,
+    save_figure,
     table,
+    write_atomic,
 )
 
 LABELS = {

@@ -19,7 +19,7 @@ Scales:
 - paper: ±5 m at 0.2 / 0.4 m (26³ unknowns), Kaczmarz at most 100 sweeps, RIFT at most
   1000 steps (100 epochs of RIFT-100), FISTA-100 and -1000 at most 100 iterations, each
   stopped once converged, every method on the
-  support estimated from its data and RIFT on an active set (`_runner.PAPER_STOPPING`).
+  support estimated from its data and RIFT on an active set (`runner.PAPER_STOPPING`).
   The quick scale takes the same options, so that the tests run them.
 
 Writes results.json, results.md (our table beside the paper's, and its claims checked),
@@ -31,8 +31,8 @@ from __future__ import annotations
 
 from functools import partial
 
-from ._runner import PAPER_STOPPING, Budget, command
 from ._scene_study import Config, main
+from .runner import PAPER_STOPPING, Budget, command
 
 SCALES = {
     "quick": Config(

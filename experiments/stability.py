@@ -41,8 +41,7 @@ import numpy as np
 
 import rift_jax as rj
 
-from ._output import save_figure, write_atomic, write_json
-from ._runner import (
+from .runner import (
     METRIC_COLUMNS,
     PAPER_SCENES,
     Run,
@@ -52,7 +51,10 @@ from ._runner import (
     execute,
     noise_name,
     rift_options,
+    save_figure,
     table,
+    write_atomic,
+    write_json,
 )
 
 LABELS = {"rift-n": "RIFT(N)", "rift-s": "RIFT(S)", "fista": "FISTA"}

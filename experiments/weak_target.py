@@ -48,10 +48,9 @@ import numpy as np
 
 import rift_jax as rj
 
-from . import _paper
+from . import runner
 from ._figures import mip_grid, training_curves
-from ._output import save_figure, write_atomic
-from ._runner import (
+from .runner import (
     METRIC_COLUMNS,
     MODEL_LABELS,
     PAPER_STOPPING,
@@ -62,7 +61,9 @@ from ._runner import (
     environment_line,
     execute,
     run_cell,
+    save_figure,
     table,
+    write_atomic,
 )
 
 
@@ -108,7 +109,7 @@ SCALES = {
 }
 
 
-PAPER_NAMES = {"kaczmarz": "LS", "rift-n": "RIFT", "rift-s": "RIFT"}  # _paper.WEAK_TARGET's
+PAPER_NAMES = {"kaczmarz": "LS", "rift-n": "RIFT", "rift-s": "RIFT"}  # runner.WEAK_TARGET's
 
 
 def methods(cfg: Config) -> list[tuple[str, str, dict]]:
@@ -229,7 +230,7 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path, 
         ("dip", lambda r: f"{100 * r['dip']:.0f}%"),
         ("resolved", lambda r: "yes" if r["resolved"] else "no"),
         ("weak side peaks at x", lambda r: f"{r['weak_side_peak_x']:.2f} m"),
-        ("paper", lambda r: _paper.WEAK_TARGET.get(PAPER_NAMES.get(r["method"]), "–")),
+        ("paper", lambda r: runner.WEAK_TARGET.get(PAPER_NAMES.get(r["method"]), "–")),
         *METRIC_COLUMNS[4:],
     ]
     sentences = [

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments import _output, _runner, stability
+from experiments import runner, stability
 
 SOLVERS_MD = Path(__file__).resolve().parent.parent / "docs" / "solvers.md"
 ROW = re.compile(r"^\| (?P<input>.+?) \| `(?P<call>.+?)` \| `(?P<kind>\w+)`: (?P<seen>.+) \|$")
@@ -104,7 +104,7 @@ def test_bad_input_gives_what_the_table_says(row, tmp_path, monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("a run started before the command line was checked")
 
-    monkeypatch.setattr(_runner, "fit_and_evaluate", refuse)
+    monkeypatch.setattr(runner, "fit_and_evaluate", refuse)
     namespace: dict = {}
     exec(_setup(), namespace)
     (a_file := tmp_path / "notes.txt").write_text("")
@@ -161,7 +161,7 @@ def test_an_interrupted_experiment_resumes_without_losing_or_repeating_a_run(tmp
     """experiments.stability at its quick scale, interrupted in the middle of its second
     run, then resumed."""
     argv = ["--scale", "quick", "--out", str(tmp_path), "--no-progress"]
-    fit_and_evaluate = _runner.fit_and_evaluate
+    fit_and_evaluate = runner.fit_and_evaluate
     calls = []
 
     def interrupted_on_the_second(*args, **kwargs):
@@ -170,7 +170,7 @@ def test_an_interrupted_experiment_resumes_without_losing_or_repeating_a_run(tmp
             raise KeyboardInterrupt  # Ctrl-C in the middle of the second run
         return fit_and_evaluate(*args, **kwargs)
 
-    monkeypatch.setattr(_runner, "fit_and_evaluate", interrupted_on_the_second)
+    monkeypatch.setattr(runner, "fit_and_evaluate", interrupted_on_the_second)
     with pytest.raises(KeyboardInterrupt):
         stability.cli(argv)
     _no_temporary_files(tmp_path)
@@ -186,7 +186,7 @@ def test_an_interrupted_experiment_resumes_without_losing_or_repeating_a_run(tmp
         calls.append(kwargs["method"])
         return fit_and_evaluate(*args, **kwargs)
 
-    monkeypatch.setattr(_runner, "fit_and_evaluate", counted)
+    monkeypatch.setattr(runner, "fit_and_evaluate", counted)
     results = stability.cli([*argv, "--resume"])
     _no_temporary_files(tmp_path)
     runs = stability.runs(stability.SCALES["quick"])
@@ -210,15 +210,15 @@ def test_an_interrupted_save_leaves_the_last_complete_files(tmp_path, monkeypatc
     """Ctrl-C while a result is being renamed into place: the file on disk is still the
     previous, complete one, and the temporary file is gone."""
     path = tmp_path / "results.json"
-    _output.write_json(path, {"rows": [1]})
-    replace = _output.os.replace
+    runner.write_json(path, {"rows": [1]})
+    replace = runner.os.replace
 
     def interrupted(source, target):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(_output.os, "replace", interrupted)
+    monkeypatch.setattr(runner.os, "replace", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        _output.write_json(path, {"rows": [1, 2]})
-    monkeypatch.setattr(_output.os, "replace", replace)
+        runner.write_json(path, {"rows": [1, 2]})
+    monkeypatch.setattr(runner.os, "replace", replace)
     assert json.loads(path.read_text()) == {"rows": [1]}
     _no_temporary_files(tmp_path)

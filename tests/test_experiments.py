@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 import rift_jax as rj
-from experiments import _runner, complex_scenes, mismatch, simple_scenes, stability, weak_target
-from experiments._output import write_atomic
+from experiments import complex_scenes, mismatch, runner, simple_scenes, stability, weak_target
+from experiments.runner import write_atomic
 
 FILES = ("results.json", "results.md", "reconstructions.npz")
 MIPS = ("reconstructions_xy.png", "reconstructions_xz.png", "training.png")
@@ -83,7 +83,7 @@ def test_resume_repeats_nothing_and_checks_the_config(quick_run, monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("a finished run was repeated")
 
-    monkeypatch.setattr(_runner, "fit_and_evaluate", refuse)
+    monkeypatch.setattr(runner, "fit_and_evaluate", refuse)
     again = module.cli(["--scale", "quick", "--out", str(out), "--resume", "--no-progress"])
     assert again["rows"] == json.loads(json.dumps(results["rows"]))
     with pytest.raises(SystemExit, match="another config or seed"):
@@ -92,8 +92,8 @@ def test_resume_repeats_nothing_and_checks_the_config(quick_run, monkeypatch):
 
 def test_draw_shares_the_test_views_and_nests_the_training_views():
     pool = rj.Viewpoints.grid(10, 10)
-    train_a, test_a = _runner.draw(pool, 20, 10, seed=3)
-    train_b, test_b = _runner.draw(pool, 50, 10, seed=3)
+    train_a, test_a = runner.draw(pool, 20, 10, seed=3)
+    train_b, test_b = runner.draw(pool, 50, 10, seed=3)
 
     def key(views):
         return set(
@@ -104,14 +104,14 @@ def test_draw_shares_the_test_views_and_nests_the_training_views():
     assert key(train_a) < key(train_b)
     assert not key(train_b) & key(test_b)
     with pytest.raises(ValueError, match="exceed the 100"):
-        _runner.draw(pool, 95, 10, seed=0)
+        runner.draw(pool, 95, 10, seed=0)
 
 
 def test_rift_options_give_every_run_the_same_steps_and_three_halvings():
     from rift_jax._solvers.inr import Recipe, _schedule
 
     for n, steps in ((100, 200), (1000, 200), (500, 300), (1000, 10000)):
-        options = _runner.rift_options(n, steps=steps)
+        options = runner.rift_options(n, steps=steps)
         per_epoch = -(-n // options["batch_views"])
         total = options["epochs"] * per_epoch
         assert total == pytest.approx(steps, rel=0.2)

@@ -1,6 +1,8 @@
-"""What every paper experiment does: draw viewpoints, reconstruct, score, save, resume.
+"""Runs: what every experiment and benchmark does — draw viewpoints, reconstruct, score,
+save, resume — and the paper's own numbers to put beside ours.
 
-An experiment is a list of `Run`s over named scenes. `execute` fits each run with
+The one public module for runs (experiments and `benchmarks` alike). An experiment is a
+list of `Run`s over named scenes. `execute` fits each run with
 `rift_jax.fit`, scores it with `FitResult.evaluate`, and after every run writes
 ``results.json`` (config, metrics, histories, wall times, versions) and
 ``reconstructions.npz`` (every reconstruction and the truths on the inverse grid) atomically,
@@ -14,10 +16,12 @@ import argparse
 import dataclasses
 import io
 import json
+import math
 import os
 import platform
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -26,7 +30,119 @@ import numpy as np
 
 import rift_jax as rj
 
-from ._output import check_writable, write_atomic, write_json
+# -- writing: an interrupted run never leaves a half-written file ---------------------------
+
+
+def write_atomic(path: str | Path, data: bytes | str) -> Path:
+    """Write ``data`` to a temporary file beside ``path``, then rename it into place."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if isinstance(data, str):
+        data = data.encode("utf-8")  # results carry π, ±, √: not the locale's business
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+    return path
+
+
+def check_writable(directory: str | Path) -> None:
+    """Create ``directory`` if needed and write (and drop) a temporary file in it: an OSError
+    now, before any run, rather than at the first save after minutes or hours of work."""
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise NotADirectoryError(f"{directory} is a file, not a directory")
+    directory.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryFile(dir=directory, prefix=".probe.", suffix=".tmp"):
+        pass
+
+
+def write_json(path: str | Path, obj) -> Path:
+    return write_atomic(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
+
+
+def save_figure(fig, path: str | Path) -> Path:
+    """Render a matplotlib figure to PNG bytes, then write them atomically."""
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    return write_atomic(path, buffer.getvalue())
+
+
+# -- the paper's numbers ------------------------------------------------------------------
+# The paper's reported numbers, for the tables that put ours beside them.
+#
+# Each entry is (m-SSIM, m-COS, t-IoU, p-RMSE) from Table 1 (cube), the appendix tables
+# (sphere, pyramid, mini highway) and Table 2 (mini parking lot). A † in the paper marks a
+# failed run; those rows are kept and flagged in `FAILED`.
+
+TABLES: dict[str, dict[str, tuple[float, float, float, float]]] = {
+    "cube": {
+        "LS-100": (0.0704, 0.5698, 0.0578, 0.0155),
+        "LS-200": (0.0908, 0.6689, 0.1663, 0.0153),
+        "LS-500": (0.1128, 0.7822, 0.1243, 0.0151),
+        "LS-1000": (0.1706, 0.8511, 0.2183, 0.0150),
+        "RIFT(N)-100": (0.6395, 0.9792, 0.3677, 0.0147),
+        "RIFT(S)-100": (0.1435, 0.6957, 0.3302, 0.0152),
+        "RIFT(N)-1000": (0.6298, 0.9833, 0.3714, 0.0145),
+        "RIFT(S)-1000": (0.6045, 0.9606, 0.3688, 0.0147),
+    },
+    "sphere": {
+        "LS-100": (0.0762, 0.5986, 0.0897, 0.0151),
+        "LS-200": (0.1007, 0.7090, 0.1741, 0.0150),
+        "LS-500": (0.1813, 0.8412, 0.2130, 0.0148),
+        "LS-1000": (0.2890, 0.8886, 0.2736, 0.0146),
+        "RIFT(N)-100": (0.8343, 0.9917, 0.3540, 0.0187),
+        "RIFT(S)-100": (0.2858, 0.9473, 0.3412, 0.0145),
+        "RIFT(N)-1000": (0.0018, 0.1893, 0.0893, 0.0214),
+        "RIFT(S)-1000": (0.6002, 0.9744, 0.3726, 0.0145),
+    },
+    "pyramid": {
+        "LS-100": (0.1163, 0.5584, 0.0576, 0.0151),
+        "LS-200": (0.1444, 0.7012, 0.1740, 0.0149),
+        "LS-500": (0.3065, 0.8158, 0.1257, 0.0147),
+        "LS-1000": (0.4258, 0.8689, 0.1822, 0.0146),
+        "RIFT(N)-100": (0.8926, 0.9840, 0.2549, 0.0185),
+        "RIFT(S)-100": (0.0266, 0.1774, 0.0581, 0.0159),
+        "RIFT(N)-1000": (0.9513, 0.9845, 0.2537, 0.0186),
+        "RIFT(S)-1000": (0.6385, 0.9271, 0.2730, 0.0147),
+    },
+    "parking_lot": {
+        "LS-2500": (0.1662, 0.5931, 0.0356, 0.0153),
+        "RIFT(N)-1000": (0.5705, 0.7833, 0.0244, 0.0152),
+        "RIFT(S)-1000": (0.6639, 0.9120, 0.0345, 0.0149),
+    },
+    "highway": {
+        "LS-2500": (0.1914, 0.5725, 0.0128, 0.0154),
+        "RIFT(N)-1000": (0.7354, 0.8778, 0.0854, 0.0160),
+        "RIFT(S)-1000": (0.6897, 0.9116, 0.0913, 0.0160),
+    },
+}
+
+FAILED = {("sphere", "RIFT(N)-1000"), ("pyramid", "RIFT(S)-100")}
+"""Runs the paper marks with † (training failed)."""
+
+WEAK_TARGET = {
+    "LS": "not resolved at any ratio",
+    "RIFT": "resolved down to 4:1 (the weaker bar's reflectivity diminished, its place right)",
+}
+"""Section 4.3 gives no numbers, only these findings (Figure 5)."""
+
+
+def paper_row(scene: str, label: str) -> str:
+    """The paper's four numbers as ``a / b / c / d`` (``†`` if failed), or ``–``."""
+    values = TABLES.get(scene, {}).get(label)
+    if values is None:
+        return "–"
+    text = " / ".join(f"{v:.4f}" for v in values)
+    return text + (" †" if (scene, label) in FAILED else "")
+
+
+# -- runs -----------------------------------------------------------------------------------
 
 MODEL_LABELS = {"rift-n": "RIFT(N)", "rift-s": "RIFT(S)"}
 """The paper's names of the `fit` methods that train an INR."""
@@ -175,9 +291,12 @@ def draw(pool: rj.Viewpoints, n_train: int, n_test: int, seed: int):
     return train, test
 
 
-def fit_and_evaluate(scene, train, test, *, radar, method, granularity, seed, progress, options):
+def fit_and_evaluate(
+    scene, train, test, *, radar, method, granularity, seed, progress, options, monitor=None
+):
     """Reconstruct ``scene`` from its signals at ``train`` on the inverse grid of
     ``granularity`` and score it against the truth at ``test``: (FitResult, metrics).
+    ``monitor`` is `fit`'s (e.g. a `Trace`).
 
     A run that diverges (least squares or RIFT) is scored on its best iterate before the
     divergence; its ``result.stopped`` says ``Outcome.DIVERGED`` and where (the paper, too,
@@ -191,12 +310,60 @@ def fit_and_evaluate(scene, train, test, *, radar, method, granularity, seed, pr
             granularity=granularity,
             seed=seed,
             progress=progress,
+            monitor=monitor,
             **options,
         )
     except rj.solvers.Diverged as error:
         result = error.result
         print(f"{method}: {error}; scoring the best iterate before it", flush=True)
     return result, result.evaluate(scene, test)
+
+
+class Trace:
+    """A run's quality against its wall time, sampled while it runs (`fit`'s ``monitor``).
+
+    Whenever the run's clock passes the next time of a geometric ladder (``first`` seconds,
+    then every ``ratio`` times longer), the best reconstruction so far is scored: m-SSIM
+    against the truth on the inverse grid, and p-RMSE at the first ``n_views`` test
+    viewpoints (a few, since every sample synthesises them; its time is not the run's).
+    `finish` adds the final result and each sample's data residual from the history.
+    ``records`` then lists ``{"iteration", "seconds", "m_ssim", "p_rmse", "residual"}``.
+    """
+
+    def __init__(self, truth, test, radar, granularity, *, first=0.25, ratio=1.5, n_views=10):
+        self.views = test[: min(n_views, len(test))]
+        self.truth = truth.resample(granularity)
+        self.radar, self.ratio = radar, ratio
+        self.signals = rj.synthesize(truth, self.views, radar)  # the truth's, once
+        self.next, self.records = first, []
+
+    def __call__(self, iteration: int, seconds: float, current) -> None:
+        if seconds >= self.next:
+            self.records.append(self._score(iteration, seconds, current()))
+            while self.next <= seconds:
+                self.next *= self.ratio
+
+    def _score(self, iteration, seconds, scene) -> dict:
+        p_rmse = math.pi / math.sqrt(3)  # a zero image has no phase: random phase's RMSE
+        if scene.reflectivity.any():  # (synthesize refuses an empty scene)
+            predicted = rj.synthesize(scene, self.views, self.radar)
+            p_rmse = rj.metrics.p_rmse(predicted, self.signals)
+        return {
+            "iteration": iteration,
+            "seconds": seconds,
+            "m_ssim": float(rj.metrics.m_ssim(scene, self.truth)),
+            "p_rmse": float(p_rmse),
+        }
+
+    def finish(self, result) -> list[dict]:
+        """The records, closed by ``result`` itself, each with its iteration's residual."""
+        final = self._score(len(result.history), result.seconds, result.scene)
+        self.records.append(final)
+        residual = result.history.residual
+        for record in self.records:
+            k = min(record["iteration"], len(residual)) - 1
+            record["residual"] = float(residual[k]) if k >= 0 else 1.0
+        return self.records
 
 
 def history_record(history) -> dict:
@@ -262,6 +429,8 @@ def execute(
     out: Path,
     report: Callable[[dict, dict, bool], None],
     analyse: Callable[[dict, np.ndarray, np.ndarray], dict] | None = None,
+    trace: Mapping | None = None,
+    notes: Mapping | None = None,
     resume: bool = False,
     progress: bool = True,
 ) -> dict:
@@ -275,7 +444,10 @@ def execute(
     when ``figures`` (at the end, and at most once a minute before: drawing takes seconds).
     ``analyse(row, reconstruction, truth)`` (both on the inverse grid) adds
     experiment-specific numbers to a run's row; they are derived from the saved
-    reconstructions at every save, so ``resume`` also refreshes them."""
+    reconstructions at every save, so ``resume`` also refreshes them. ``trace`` (`Trace`'s
+    options, or None) samples each run's quality against its wall time into its row's
+    ``trace``. ``notes`` go into the results as they are (e.g. the machine's matmul rate);
+    a resumed run keeps the first run's and adds the new ones under ``resumed_notes``."""
     out = Path(out)
     config = json.loads(json.dumps(dataclasses.asdict(cfg)))  # tuples as JSON lists
     results = {"experiment": name, "scale": scale, "config": config, "seed": seed}
@@ -294,9 +466,12 @@ def execute(
         with np.load(out / "reconstructions.npz") as saved:
             volumes = {key: saved[key] for key in saved.files}
         results.setdefault("resumed_with", []).append(versions())  # the first run's stay
+        if notes:
+            results.setdefault("resumed_notes", []).append(dict(notes))
         print(f"resuming: {len(done['rows'])} runs kept from {out / 'results.json'}", flush=True)
     else:
         results["versions"] = versions()
+        results |= {"notes": dict(notes or {})}
     grids = {key: inverse for key in scenes} if not isinstance(inverse, Mapping) else inverse
     for key, scene in scenes.items():  # a Scene resampled, PointScatterers spread
         volumes[f"truth/{key}"] = np.asarray(scene.resample(grids[key]).reflectivity)
@@ -323,6 +498,9 @@ def execute(
             continue
         train, test = draw(pool, run.n_train, n_test, seed)
         run_seed = seed if run.seed is None else run.seed
+        tracer = None
+        if trace is not None:
+            tracer = Trace(scenes[run.scene], test, radar, grids[run.scene], **trace)
         start = time.perf_counter()
         result, metrics = fit_and_evaluate(
             scenes[run.scene],
@@ -334,12 +512,15 @@ def execute(
             seed=run_seed,
             progress=progress,
             options=dict(run.options),
+            monitor=tracer,
         )
         wall = time.perf_counter() - start
         history = result.history
         row = {"scene": run.scene, "run": run.label, "method": run.method}
         row |= {"n_train": run.n_train, "options": dict(run.options)} | metrics
         row["seed"] = run_seed
+        if tracer is not None:
+            row["trace"] = tracer.finish(result)
         row |= {
             "fit_seconds": result.seconds,
             "wall_seconds": wall,  # fit + evaluation (test signals of truth and prediction)
@@ -366,10 +547,11 @@ def execute(
     return results
 
 
-def parse(argv, doc: str, scales: Mapping, name: str):
-    """The command line every experiment shares: (config, args) with ``args.out`` set."""
+def parse(argv, doc: str, scales: Mapping, name: str, root: str = "results"):
+    """The command line every experiment and benchmark shares: (config, args) with
+    ``args.out`` set (default ``root/NAME_SCALE``)."""
     parser = argparse.ArgumentParser(
-        prog=f"python -m experiments.{name}",
+        prog=f"python -m {'benchmarks' if root == 'docs/results' else 'experiments'}.{name}",
         description=doc.split("\n\n")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -385,7 +567,7 @@ def parse(argv, doc: str, scales: Mapping, name: str):
     parser.add_argument("--resume", action="store_true", help="keep the runs already in --out")
     parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
     args = parser.parse_args(argv)
-    args.out = args.out or Path("results") / f"{name}_{args.scale}"
+    args.out = args.out or Path(root) / f"{name}_{args.scale}"
     try:
         check_writable(args.out)
     except OSError as error:  # an existing file, a read-only place: say so before any run
@@ -393,10 +575,12 @@ def parse(argv, doc: str, scales: Mapping, name: str):
     return scales[args.scale], args
 
 
-def command(argv, doc: str, scales: Mapping, name: str, main: Callable[..., dict]) -> dict:
+def command(
+    argv, doc: str, scales: Mapping, name: str, main: Callable[..., dict], root: str = "results"
+) -> dict:
     """Parse the shared command line and call ``main(cfg, out=, scale=, seed=, resume=,
     progress=)``."""
-    cfg, args = parse(argv, doc, scales, name)
+    cfg, args = parse(argv, doc, scales, name, root)
     return main(
         cfg,
         out=args.out,
