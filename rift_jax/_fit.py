@@ -196,8 +196,9 @@ def fit(
     - `monitor`: ``monitor(iteration, seconds, current)`` after every iteration (sweep,
       check, epoch), where ``current()`` is the best reconstruction so far as a `Scene` on
       the inverse grid (for RIFT, the best field's rendering, zero off the support): what
-      stopping now would give, to draw run time against error. The time it takes is left
-      out of the run's clock and history.
+      stopping now would give, to draw run time against error. ``seconds`` run on the
+      clock of `FitResult.seconds` (from the start of the reconstruction, a support
+      estimate included); the monitor's own time is left out of it and of the history.
     - `**options`: passed to the solver (``iterations``, ``tol``, ``relaxation``, ...; for
       RIFT ``recipe``, ``epochs``, ``loss``, ``prune``, ...; see `rift_jax.solvers`). RIFT
       also takes ``train_granularity``: coarse to fine, it trains the field for its last
@@ -289,8 +290,9 @@ def fit(
             values = jnp.asarray(rho.reshape(grid.shape), jnp.complex64)
             return Scene(values, extent, granularity)
 
-        def watch(iteration, seconds, current):
+        def watch(iteration, _, current):  # on fit's clock: a support estimate counts too
             looked = time.perf_counter()
+            seconds = looked - start - watched[0]
             monitor(iteration, seconds, lambda: current_scene(current()))
             watched[0] += time.perf_counter() - looked
 
