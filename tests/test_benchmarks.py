@@ -1,0 +1,69 @@
+"""benchmarks.time_to_quality at its quick scale: traces, tables, figure and resume."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from benchmarks import time_to_quality
+from experiments import runner
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    out = tmp_path_factory.mktemp("time_to_quality")
+    results = time_to_quality.cli(["--scale", "quick", "--out", str(out), "--no-progress"])
+    return out, results
+
+
+def test_every_method_is_traced_against_its_own_clock(quick):
+    out, results = quick
+    cfg = time_to_quality.SCALES["quick"]
+    expected = [(r.scene, r.label, r.method) for r in time_to_quality.runs(cfg)]
+    assert [(r["scene"], r["run"], r["method"]) for r in results["rows"]] == expected
+    assert {r["method"] for r in results["rows"]} == set(cfg.methods)  # `fit`'s names
+    for row in results["rows"]:
+        trace = row["trace"]
+        seconds = [r["seconds"] for r in trace]
+        assert np.all(np.diff(seconds) >= 0), row["run"]
+        # the last sample is the result itself: the same m-SSIM as its evaluation
+        assert trace[-1]["m_ssim"] == pytest.approx(row["m_ssim"], abs=1e-9)
+        assert trace[-1]["seconds"] == pytest.approx(row["fit_seconds"])
+        assert all(-1 <= r["m_ssim"] <= 1 and 0 <= r["p_rmse"] <= np.pi for r in trace)
+        assert all(0 <= r["residual"] for r in trace)
+    assert max(len(row["trace"]) for row in results["rows"]) > 2  # sampled while running
+    assert results["notes"]["matmul_rate_gmacs"] > 0
+    saved = json.loads((out / "results.json").read_text())
+    assert saved["rows"] == json.loads(json.dumps(results["rows"]))
+    text = (out / "results.md").read_text()
+    assert "## cube, 10 training views" in text and "to m-SSIM 0.9" in text
+    assert "rift-n auto fine" in text and "G multiply-adds/s" in text
+    assert (out / "time_to_quality.png").stat().st_size > 10_000
+
+
+def test_a_finished_benchmark_resumes_without_repeating_a_run(quick, monkeypatch):
+    out, results = quick
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a finished run was repeated")
+
+    monkeypatch.setattr(runner, "fit_and_evaluate", refuse)
+    again = time_to_quality.cli(
+        ["--scale", "quick", "--out", str(out), "--resume", "--no-progress"]
+    )
+    assert again["rows"] == json.loads(json.dumps(results["rows"]))
+
+
+def test_reading_a_trace():
+    trace = [
+        {"seconds": 1.0, "m_ssim": 0.3},
+        {"seconds": 4.0, "m_ssim": 0.85},
+        {"seconds": 90.0, "m_ssim": 0.6},  # quality can fall: the residual is what fell
+    ]
+    assert time_to_quality.time_to(trace, 0.5) == 4.0
+    assert time_to_quality.time_to(trace, 0.9) is None
+    assert time_to_quality.quality_at(trace, 0.5) is None
+    assert time_to_quality.quality_at(trace, 60.0) == 0.85
+    assert time_to_quality.quality_at(trace, 900.0) == 0.6  # what stopping then gives
