@@ -73,16 +73,18 @@ def main(argv=None):
     truth = np.asarray(truth).ravel()
     strong = np.flatnonzero(np.abs(truth) >= 0.1)
     strong = np.random.default_rng(0).choice(strong, min(3000, strong.size), replace=False)
-    fig, axes = plt.subplots(1, len(RUNS), figsize=(3.2 * len(RUNS), 3.4), sharey=True)
-    for ax, (label, predicted) in zip(axes, predictions.items(), strict=True):
+    fig, axes = plt.subplots(2, 2, figsize=(7, 7), sharex=True, sharey=True)
+    for ax, (label, predicted) in zip(axes.flat, predictions.items(), strict=True):
         predicted = np.asarray(predicted).ravel()
         ax.scatter(np.angle(truth[strong]), np.angle(predicted[strong]), s=3, alpha=0.4)
         ax.plot([-math.pi, math.pi], [-math.pi, math.pi], color="k", lw=0.8)
-        ax.set_title(f"{label}\np-RMSE {rows[label]['p_rmse']:.2f} rad", fontsize=9)
-        ax.set_xlabel("true phase (rad)")
+        ax.set_title(f"{label}: p-RMSE {rows[label]['p_rmse']:.2f} rad", fontsize=10)
         ax.set_xlim(-math.pi, math.pi)
         ax.set_ylim(-math.pi, math.pi)
-    axes[0].set_ylabel("predicted phase (rad)")
+    for ax in axes[1]:
+        ax.set_xlabel("true phase (rad)")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("predicted phase (rad)")
     fig.suptitle(f"{len(test)} unseen viewpoints below the {len(train)} training views")
     fig.tight_layout()
     fig.savefig(args.out / "unseen_viewpoints.png", dpi=110)
