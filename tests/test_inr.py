@@ -383,9 +383,9 @@ def test_pruning_trains_the_scene_on_fewer_points(small_cube):
     assert 27 < active < 300  # the 27 voxels of the cube, and some of their neighbours
     assert np.count_nonzero(np.asarray(pruned.scene.reflectivity)) <= active
     a, b = plain.evaluate(scene, test), pruned.evaluate(scene, test)
-    # both recover the cube (the unpruned run measured 0.89 with jax 0.10.2, above 0.9
-    # with earlier versions: the bar is that both succeed, and alike)
-    assert a["m_ssim"] > 0.85 and b["m_ssim"] > 0.85 and abs(a["m_ssim"] - b["m_ssim"]) < 0.1
+    # both recover the cube, the pruned run no worse (jax 0.10.2: unpruned 0.89, pruned 0.99;
+    # earlier versions: both above 0.9)
+    assert a["m_ssim"] > 0.85 and b["m_ssim"] > a["m_ssim"] - 0.05
     with pytest.raises(ValueError, match="prune"):
         rj.solvers.Recipe(prune=1.0)
     with pytest.raises(ValueError, match="recheck_every"):
