@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import inspect
+import math
 import time
 import warnings
 from collections.abc import Callable
@@ -152,7 +153,8 @@ def fit(
     support: None | str | np.ndarray | Scene = None,
     seed: int = 0,
     progress: bool = True,
-    monitor: Callable[[int, float, Callable[[], Scene]], None] | None = None,
+    monitor: Callable[[int, float, Callable[[], Scene]], bool | None] | None = None,
+    time_limit: float | None = None,
     **options,
 ) -> FitResult:
     """Reconstruct a scene from radar signals at ``viewpoints``.
@@ -198,7 +200,12 @@ def fit(
       the inverse grid (for RIFT, the best field's rendering, zero off the support): what
       stopping now would give, to draw run time against error. ``seconds`` run on the
       clock of `FitResult.seconds` (from the start of the reconstruction, a support
-      estimate included); the monitor's own time is left out of it and of the history.
+      estimate included); the monitor's own time is left out of it and of the history. A
+      monitor that returns True ends the run there (`Outcome.STOPPED`), keeping the best
+      so far (for RIFT, without the collapse check and its retries).
+    - `time_limit`: seconds on that clock: the run ends after the iteration in which the
+      clock passes it (`Outcome.STOPPED`), with the best reconstruction so far. An
+      iteration is a sweep, a check or an epoch, so a run may overshoot by up to one.
     - `**options`: passed to the solver (``iterations``, ``tol``, ``relaxation``, ...; for
       RIFT ``recipe``, ``epochs``, ``loss``, ``prune``, ...; see `rift_jax.solvers`). RIFT
       also takes ``train_granularity``: coarse to fine, it trains the field for its last
@@ -273,9 +280,17 @@ def fit(
             )
         solver_options = {**solver_options, "x0": x0[mask.ravel()]}
 
-    if monitor is not None:
-        if not callable(monitor):
-            raise ValueError(f"fit: `monitor` must be callable, got {type(monitor).__name__}.")
+    if monitor is not None and not callable(monitor):
+        raise ValueError(f"fit: `monitor` must be callable, got {type(monitor).__name__}.")
+    if time_limit is not None and (
+        isinstance(time_limit, bool)
+        or not isinstance(time_limit, int | float | np.number)
+        or not 0 < time_limit < math.inf
+    ):
+        raise ValueError(
+            f"fit: `time_limit` must be a positive number of seconds, got {time_limit!r}."
+        )
+    if monitor is not None or time_limit is not None:
 
         def current_scene(current) -> Scene:  # the solver's ρ (or RIFT's field) as a Scene
             if isinstance(current, Field):
@@ -293,8 +308,11 @@ def fit(
         def watch(iteration, _, current):  # on fit's clock: a support estimate counts too
             looked = time.perf_counter()
             seconds = looked - start - watched[0]
-            monitor(iteration, seconds, lambda: current_scene(current()))
+            stop = monitor is not None and monitor(
+                iteration, seconds, lambda: current_scene(current())
+            )
             watched[0] += time.perf_counter() - looked
+            return bool(stop) or (time_limit is not None and seconds >= time_limit)
 
         solver_options = {**solver_options, "monitor": watch}
     watched = [0.0]  # the monitor's seconds: not the reconstruction's

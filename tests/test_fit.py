@@ -148,3 +148,48 @@ def test_monitor_sees_each_iteration_and_changes_nothing(method, options):
         np.testing.assert_array_equal(seen[-1][2].reflectivity, watched.scene.reflectivity)
     with pytest.raises(ValueError, match="`monitor` must be callable"):
         rj.fit(scene, train, monitor=1, **common)
+
+
+@pytest.mark.parametrize(
+    "method, options",
+    [("kaczmarz", {"iterations": 6}), ("fista", {"iterations": 6}), ("rift-n", {"epochs": 6})],
+)
+def test_a_monitor_or_time_limit_ends_the_run_with_the_best_so_far(method, options):
+    """A monitor that returns True ends the run after that iteration (`Outcome.STOPPED`),
+    and the result is what its `current()` showed: the run up to there, unchanged.
+    `time_limit` ends it after the iteration in which fit's clock passes the limit, and a
+    limit never reached changes nothing."""
+    radar = rj.Radar(n_frequencies=8, n_tx=4, n_rx=4)
+    scene = rj.scenes.cube(0.5, extent=1.0, edge=1.0)
+    train = rj.Viewpoints.grid(4, 4, polar_range=(0.3, 1.3))
+    common = dict(radar=radar, method=method, granularity=1.0, progress=False, tol=0, **options)
+    if method.startswith("rift"):
+        common.pop("tol")
+    seen = []
+
+    def stop_at_three(iteration, seconds, current):
+        seen.append((seconds, current()))
+        return iteration == 3
+
+    stopped = rj.fit(scene, train, monitor=stop_at_three, **common)
+    assert stopped.stopped == rj.solvers.Stop(rj.solvers.Outcome.STOPPED, 3)
+    assert len(seen) == 3
+    if method != "fista":  # (FISTA's history adds its last iterate, checked after the loop)
+        assert len(stopped.history) == 3
+        # (RIFT's: one field rendered by two compiled functions, equal to float32 rounding)
+        np.testing.assert_allclose(
+            seen[-1][1].reflectivity, stopped.scene.reflectivity, rtol=1e-6, atol=1e-6
+        )
+    whole = rj.fit(scene, train, **common)
+    assert whole.stopped.outcome is rj.solvers.Outcome.BUDGET
+    if method == "kaczmarz":  # stopping changes nothing before it: its three sweeps are these
+        np.testing.assert_array_equal(stopped.history.residual, whole.history.residual[:3])
+
+    # the clock passes a limit of a nanosecond in the first iteration, and never a day's
+    limited = rj.fit(scene, train, time_limit=1e-9, **common)
+    assert limited.stopped == rj.solvers.Stop(rj.solvers.Outcome.STOPPED, 1)
+    unlimited = rj.fit(scene, train, time_limit=86400, **common)
+    np.testing.assert_array_equal(unlimited.scene.reflectivity, whole.scene.reflectivity)
+    for bad in (0, -1.0, float("inf"), "60", True):
+        with pytest.raises(ValueError, match="`time_limit` must be a positive number"):
+            rj.fit(scene, train, time_limit=bad, **common)

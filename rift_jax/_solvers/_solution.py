@@ -44,6 +44,7 @@ class Outcome(enum.Enum):
     CONVERGED = "converged"  # progress stalled: `tol` (least squares) or `patience` (RIFT)
     DIVERGED = "diverged"  # a non-finite residual, loss or gradient; the best before it is kept
     ZERO_SIGNAL = "zero signal"  # all-zero data: ρ = 0, nothing ran
+    STOPPED = "stopped"  # the monitor ended it (e.g. `fit`'s ``time_limit``); best so far kept
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,16 +107,18 @@ class Diverged(ValueError):
         self.result = None
 
 
-Monitor = Callable[[int, float, Callable[[], Any]], None]
+Monitor = Callable[[int, float, Callable[[], Any]], bool | None]
 """``monitor(iteration, seconds, current)``: a look at a run while it runs (`fit`'s
-``monitor``); ``current()`` returns the best reconstruction so far."""
+``monitor``); ``current()`` returns the best reconstruction so far. A monitor that returns
+True ends the run after this iteration (`Outcome.STOPPED`), keeping the best so far."""
 
 
-def timed_out(monitor: Monitor, iteration: int, seconds: float, current) -> float:
-    """Call ``monitor`` and return the seconds it took, which the run's clock leaves out."""
+def timed_out(monitor: Monitor, iteration: int, seconds: float, current) -> tuple[float, bool]:
+    """Call ``monitor``: the seconds it took (which the run's clock leaves out), and whether
+    it asked the run to stop."""
     start = time.perf_counter()
-    monitor(iteration, seconds, current)
-    return time.perf_counter() - start
+    stop = monitor(iteration, seconds, current)
+    return time.perf_counter() - start, bool(stop)
 
 
 _PATIENCE = 3
@@ -148,7 +151,8 @@ def iterate(
     budget.
     ``monitor(k, seconds, current)``, if given, is called after iteration k (from 1), with
     ``current()`` giving the best iterate so far; the time it takes is left out of
-    ``seconds`` and of the history.
+    ``seconds`` and of the history, and if it returns True the run ends there
+    (`Outcome.STOPPED`).
     A non-finite residual raises `Diverged` naming the iteration; its ``.solution`` holds the
     best iterate before it. The progress
     bar appears only for runs longer than two seconds.
@@ -173,10 +177,14 @@ def iterate(
             residuals.append(residual)
             if residual < best_residual:
                 best, best_residual, best_index = image(carry), residual, k
-            if monitor is not None:
-                start += timed_out(monitor, k + 1, seconds[-1], lambda best=best: best)
             bar.set_postfix(residual=f"{residual:.4g}", refresh=False)
             bar.update()
+            if monitor is not None:
+                looked, stop = timed_out(monitor, k + 1, seconds[-1], lambda best=best: best)
+                start += looked
+                if stop:
+                    stopped = Stop(Outcome.STOPPED, k + 1)
+                    break
             if (
                 tol > 0
                 and k >= _PATIENCE

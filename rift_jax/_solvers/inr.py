@@ -194,8 +194,9 @@ def rift(
       marks the ones trained last); `rho` is still its rendering on the operator's points.
     - `seed`: seeds the INR's initialisation and the order of the viewpoints.
     - `monitor`: ``monitor(epoch, seconds, current)`` after each epoch, ``current()`` the
-      best `Field` so far (as `kaczmarz`'s; its time is not counted). The seconds run on
-      over a collapse's retries, whose epochs count from 1 again.
+      best `Field` so far (as `kaczmarz`'s; its time is not counted; True ends the run,
+      which is then neither checked for collapse nor retried). The seconds run on over a
+      collapse's retries, whose epochs count from 1 again.
     - `**overrides`: any `Recipe` field, replacing the recipe's value (e.g. ``epochs=50``).
 
     **Returns:** a `Solution` whose `field` is the trained `Field` of the epoch with the
@@ -239,15 +240,15 @@ def rift(
             offset = spent[0]
 
             def watch(epoch, seconds, current):
-                monitor(epoch, offset + seconds, current)
+                return monitor(epoch, offset + seconds, current)
 
         solution = train(**kwargs, monitor=watch)
         spent[0] += solution.seconds
         return solution
 
     solution = attempt(recipe=recipe, seed=seed)
-    if solution.stopped.outcome is Outcome.ZERO_SIGNAL:
-        return solution
+    if solution.stopped.outcome in (Outcome.ZERO_SIGNAL, Outcome.STOPPED):
+        return solution  # (a run its monitor stopped is not judged, nor retried)
 
     def checked(solution: Solution) -> tuple[Solution, str | None]:
         return solution, _check_collapse(solution, operator.fn, signal, warm=init is not None)
@@ -268,7 +269,11 @@ def rift(
             }
         )
         retry = dataclasses.replace(recipe, learning_rate=learning_rate)
-        attempts.append(checked(attempt(recipe=retry, seed=retry_seed)))
+        solution = attempt(recipe=retry, seed=retry_seed)
+        if solution.stopped.outcome is Outcome.STOPPED:  # out of time: this one, unjudged
+            attempts.append((solution, None))
+            break
+        attempts.append(checked(solution))
     solution, why = attempts[-1]
     if why is not None:  # every attempt collapsed: the one that fitted best, said out loud
         solution, why = min(attempts, key=lambda attempt: attempt[0].stats["best_loss"])
@@ -556,9 +561,11 @@ def _train(
                 # per epoch, exactly the epoch's): never ones whose own measure is unknown
                 best_loss, best_params, best_epoch = progress_measure, measured, epoch
                 best_set = (candidates, active, switch is not None and epoch >= switch)
+            stop = False
             if monitor is not None:  # the best field so far, as `result` would return it
                 best_field = functools.partial(eqx.combine, best_params, static)
-                start += timed_out(monitor, epoch, seconds[-1], best_field)
+                looked, stop = timed_out(monitor, epoch, seconds[-1], best_field)
+                start += looked
             bar.set_postfix(
                 loss=f"{losses[-1]:.4g}",
                 best=f"{best_loss:.4g}",
@@ -566,6 +573,8 @@ def _train(
                 refresh=False,
             )
             bar.update()
+            if stop:
+                return result(Stop(Outcome.STOPPED, epoch))
             if recipe.patience is not None and epoch - improved_epoch >= recipe.patience:
                 if switch is None or epoch >= switch:
                     return result(Stop(Outcome.CONVERGED, epoch))

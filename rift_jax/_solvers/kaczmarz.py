@@ -72,7 +72,8 @@ def kaczmarz(
     - `x0`: starting ρ (default 0), e.g. a previous run's result to resume it.
     - `progress`: show a progress bar on runs longer than two seconds.
     - `monitor`: ``monitor(sweep, seconds, current)`` after each sweep, ``current()`` the
-      best ρ so far; its time is not counted (for run time against error curves).
+      best ρ so far; its time is not counted (for run time against error curves). If it
+      returns True, the run ends there (`Outcome.STOPPED`).
 
     **Returns:** a `Solution` holding the iterate with the lowest residual.
     ``history.residual[k]`` is ‖y − Aρ‖/‖y‖ of the iterate at the end of sweep k (an undone
