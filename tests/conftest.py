@@ -1,8 +1,28 @@
+import os
+import shutil
+import tempfile
+
 import jax
 import numpy as np
 import pytest
 
 import rift_jax as rj
+
+# Most of the suite's time is XLA compiling, and its processes (the xdist workers, and the
+# subprocesses some tests start) compile many of the same programs: they share them through
+# JAX's disk cache, in a fresh folder per test run (made by the first process, which the
+# others inherit it from, and which removes it at the end), so nothing is kept between runs.
+_OWNER = "RIFT_JAX_TEST_CACHE" not in os.environ
+if _OWNER:
+    os.environ["RIFT_JAX_TEST_CACHE"] = tempfile.mkdtemp(prefix="rift_jax_tests_")
+_CACHE = os.environ["RIFT_JAX_TEST_CACHE"]
+os.environ["JAX_COMPILATION_CACHE_DIR"] = _CACHE  # for the subprocesses tests start
+jax.config.update("jax_compilation_cache_dir", _CACHE)
+
+
+def pytest_sessionfinish(session):
+    if _OWNER:
+        shutil.rmtree(_CACHE, ignore_errors=True)
 
 
 @pytest.fixture
