@@ -113,7 +113,7 @@ Monitor = Callable[[int, float, Callable[[], Any]], bool | None]
 True ends the run after this iteration (`Outcome.STOPPED`), keeping the best so far."""
 
 
-def timed_out(monitor: Monitor, iteration: int, seconds: float, current) -> tuple[float, bool]:
+def call_monitor(monitor: Monitor, iteration: int, seconds: float, current) -> tuple[float, bool]:
     """Call ``monitor``: the seconds it took (which the run's clock leaves out), and whether
     it asked the run to stop."""
     start = time.perf_counter()
@@ -180,7 +180,7 @@ def iterate(
             bar.set_postfix(residual=f"{residual:.4g}", refresh=False)
             bar.update()
             if monitor is not None:
-                looked, stop = timed_out(monitor, k + 1, seconds[-1], lambda best=best: best)
+                looked, stop = call_monitor(monitor, k + 1, seconds[-1], lambda best=best: best)
                 start += looked
                 if stop:
                     stopped = Stop(Outcome.STOPPED, k + 1)

@@ -41,7 +41,7 @@ from .._validation import (
     check_positive_int,
 )
 from ._common import as_complex, as_pair, check_problem, realified, zero_signal
-from ._solution import Diverged, History, Monitor, Outcome, Solution, Stop, timed_out
+from ._solution import Diverged, History, Monitor, Outcome, Solution, Stop, call_monitor
 
 
 @dataclasses.dataclass(frozen=True)
@@ -564,7 +564,7 @@ def _train(
             stop = False
             if monitor is not None:  # the best field so far, as `result` would return it
                 best_field = functools.partial(eqx.combine, best_params, static)
-                looked, stop = timed_out(monitor, epoch, seconds[-1], best_field)
+                looked, stop = call_monitor(monitor, epoch, seconds[-1], best_field)
                 start += looked
             bar.set_postfix(
                 loss=f"{losses[-1]:.4g}",
