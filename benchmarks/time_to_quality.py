@@ -238,9 +238,10 @@ def markdown(results: dict, cfg: Config, scale: str) -> str:
             lines += ["", f"## {scene}, {n} training views", ""]
             if n in cfg.time_limit:
                 lines += [
-                    f"Every run ended once its clock passed {_seconds(cfg.time_limit[n])} "
-                    "(`time_limit`; `stopped` says so), after the iteration in which it "
-                    "did: a Gauss-Newton step, a sweep or an epoch may overshoot.",
+                    f"Every run was capped at {_seconds(cfg.time_limit[n])} of its clock "
+                    "(`time_limit`): one that reached it ended after the iteration in which "
+                    "it did (a Gauss-Newton step, a sweep or an epoch may overshoot), and "
+                    "`stopped` says so.",
                     "",
                 ]
             lines += [table(chosen, columns)]
