@@ -10,7 +10,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import inspect
-import math
 import time
 import warnings
 from collections.abc import Callable
@@ -29,7 +28,7 @@ from ._sharding import gathered
 from ._solvers import Diverged, History, Stop
 from ._support import as_mask, estimate_support, mask_at, voxels_holding
 from ._synthesis import PointScatterers, RadarData, synthesize
-from ._validation import check_finite, check_instance, check_nonnegative_int
+from ._validation import check_finite, check_instance, check_nonnegative_int, check_positive
 
 METHODS = {
     "kaczmarz": _solvers.kaczmarz,
@@ -282,14 +281,8 @@ def fit(
 
     if monitor is not None and not callable(monitor):
         raise ValueError(f"fit: `monitor` must be callable, got {type(monitor).__name__}.")
-    if time_limit is not None and (
-        isinstance(time_limit, bool)
-        or not isinstance(time_limit, int | float | np.number)
-        or not 0 < time_limit < math.inf
-    ):
-        raise ValueError(
-            f"fit: `time_limit` must be a positive number of seconds, got {time_limit!r}."
-        )
+    if time_limit is not None:
+        check_positive("fit: `time_limit`", time_limit)
     if monitor is not None or time_limit is not None:
 
         def current_scene(current) -> Scene:  # the solver's ρ (or RIFT's field) as a Scene

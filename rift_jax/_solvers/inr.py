@@ -247,10 +247,12 @@ def rift(
         return solution
 
     solution = attempt(recipe=recipe, seed=seed)
-    if solution.stopped.outcome in (Outcome.ZERO_SIGNAL, Outcome.STOPPED):
-        return solution  # (a run its monitor stopped is not judged, nor retried)
+    if solution.stopped.outcome is Outcome.ZERO_SIGNAL:
+        return solution
 
     def checked(solution: Solution) -> tuple[Solution, str | None]:
+        if solution.stopped.outcome is Outcome.STOPPED:  # its monitor ended it: not judged,
+            return solution, None  # so not retried
         return solution, _check_collapse(solution, operator.fn, signal, warm=init is not None)
 
     attempts, remedies = [checked(solution)], []  # (solution, why it collapsed or None)
@@ -269,11 +271,7 @@ def rift(
             }
         )
         retry = dataclasses.replace(recipe, learning_rate=learning_rate)
-        solution = attempt(recipe=retry, seed=retry_seed)
-        if solution.stopped.outcome is Outcome.STOPPED:  # out of time: this one, unjudged
-            attempts.append((solution, None))
-            break
-        attempts.append(checked(solution))
+        attempts.append(checked(attempt(recipe=retry, seed=retry_seed)))
     solution, why = attempts[-1]
     if why is not None:  # every attempt collapsed: the one that fitted best, said out loud
         solution, why = min(attempts, key=lambda attempt: attempt[0].stats["best_loss"])
