@@ -3,7 +3,11 @@
 On CPU, rift_jax starts JAX with one host device per core (`rift_jax/__init__.py`), because
 XLA runs one small computation on about one core; on a GPU machine the devices are the GPUs;
 after `jax.distributed.initialize` they are every process's devices. Both splits use
-`jax.shard_map` on a one-axis mesh over `jax.devices()`:
+`jax.shard_map` on one mesh, `device_mesh()`: one axis, `DEVICES`, over `jax.devices()`.
+One mesh, not one per split: an array's sharding names its mesh, and a jitted solver step
+whose input came out of one split and goes back in beside arrays placed by another would
+otherwise see a new sharding and compile again (every FISTA and Gauss-Newton run compiled
+its step twice or three times that way):
 
 - **over viewpoints** (`over_views`): independent views, one share per device; outputs are
   concatenated, or summed (a backprojection) with one `psum`;
@@ -24,6 +28,7 @@ from __future__ import annotations
 
 import functools
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax.sharding import AxisType
@@ -31,27 +36,35 @@ from jax.sharding import PartitionSpec as P
 
 from ._precision import leading
 
-VIEWS = "views"
-VOXELS = "voxels"
+DEVICES = "devices"
 
 
-def device_mesh(axis: str) -> jax.sharding.Mesh:
-    """A one-axis mesh over every device (one per CPU core on CPU, see `rift_jax/__init__`)."""
+def device_mesh() -> jax.sharding.Mesh:
+    """The one-axis mesh over every device (one per CPU core on CPU, see
+    `rift_jax/__init__`) that every split and `replicated` use."""
     devices = jax.devices()
-    return jax.make_mesh((len(devices),), (axis,), devices=devices, axis_types=(AxisType.Auto,))
+    return jax.make_mesh((len(devices),), (DEVICES,), devices=devices, axis_types=(AxisType.Auto,))
 
 
 def replicated(tree):
-    """``tree``'s arrays copied to every device.
+    """``tree``'s arrays copied to every device (its other leaves as they are); inside a
+    `jit`, constrained to be (where `jax.device_put` does not enforce it).
 
     Pass the inputs of a jitted *loop* around the operator (lineax, optimistix, jaxopt, a
     `fori_loop`) through this: XLA does not partition a jit whose inputs all sit on one
     device, and a `shard_map` nested in its loop then fails to compile on CPU ("No
-    registered implementation for ... GlobalToLocalShape").
+    registered implementation for ... GlobalToLocalShape"). A loop step that returns its
+    carry through it, and starts from a carry placed by it, compiles once.
     """
     if jax.device_count() == 1:
         return tree
-    return jax.device_put(tree, jax.sharding.NamedSharding(device_mesh("replicated"), P()))
+    arrays, rest = eqx.partition(tree, eqx.is_array)  # a solver state also holds functions
+    everywhere = jax.sharding.NamedSharding(device_mesh(), P())
+    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(arrays)):
+        arrays = jax.lax.with_sharding_constraint(arrays, everywhere)
+    else:
+        arrays = jax.device_put(arrays, everywhere)
+    return eqx.combine(arrays, rest)
 
 
 def gathered(x):
@@ -89,12 +102,12 @@ def over_views(local, azimuth, polar, data, *, reduce: bool):
     azimuth, polar = pad_leading((azimuth, polar), pad, "edge")
     if reduce:
         data = pad_leading(data, pad, "constant")
-        body = functools.partial(_summed, local, VIEWS)
-        specs, out_spec = (P(VIEWS), P(VIEWS), P(VIEWS)), P()
+        body = functools.partial(_summed, local)
+        specs, out_spec = (P(DEVICES), P(DEVICES), P(DEVICES)), P()
     else:
         body = local
-        specs, out_spec = (P(VIEWS), P(VIEWS), P()), P(VIEWS)
-    mesh = device_mesh(VIEWS)
+        specs, out_spec = (P(DEVICES), P(DEVICES), P()), P(DEVICES)
+    mesh = device_mesh()
     return jax.shard_map(body, mesh=mesh, in_specs=specs, out_specs=out_spec)(azimuth, polar, data)
 
 
@@ -146,16 +159,16 @@ def over_voxels(local, points, voxel_data, shared, *, reduce: bool):
     pad = -n % n_dev
     points = pad_leading(points, pad, "edge")
     voxel_data = pad_leading(voxel_data, pad, "constant")  # padded voxels carry ρ = 0
-    body = functools.partial(_summed, local, VOXELS) if reduce else local
-    out_spec = P() if reduce else P(VOXELS)
+    body = functools.partial(_summed, local) if reduce else local
+    out_spec = P() if reduce else P(DEVICES)
     out = jax.shard_map(
         body,
-        mesh=device_mesh(VOXELS),
-        in_specs=(P(VOXELS), P(VOXELS), P()),
+        mesh=device_mesh(),
+        in_specs=(P(DEVICES), P(DEVICES), P()),
         out_specs=out_spec,
     )(points, voxel_data, shared)
     return out if reduce else out[:n]
 
 
-def _summed(local, axis, *args):
-    return jax.lax.psum(local(*args), axis)
+def _summed(local, *args):
+    return jax.lax.psum(local(*args), DEVICES)

@@ -102,8 +102,11 @@ def _compilations(caplog, call) -> list[str]:
 def test_plain_calls_compile_once(caplog):
     """A second plain call with new values of the same shapes compiles nothing (before the
     kernels were jitted, every call traced and compiled the whole scan again: 0.8 s). The
-    solvers too, on a new signal. (Gauss-Newton is the exception: its step compiles once
-    per run, see `rift_jax._solvers.nonlinear`.)"""
+    solvers too, on a new signal; and within a run each compiles its iteration once (the
+    first FISTA step's state had another structure and sharding than the next ones', and
+    Kaczmarz's and Gauss-Newton's first iterate another sharding: each compiled its step
+    twice or three times). Gauss-Newton's step compiles once per run, see
+    `rift_jax._solvers.nonlinear`."""
     radar = rj.Radar(n_frequencies=6, n_tx=3, n_rx=4)
     points = rj.grid_points(1.0, 0.25)
     rho = np.ones(len(points), np.complex64)
@@ -124,14 +127,30 @@ def test_plain_calls_compile_once(caplog):
             "view": lambda: op.fn.view(scale * rho, index),
             "view_adjoint": lambda: op.fn.view_adjoint(data[0], index),
             "synthesize": lambda: rj.synthesize(scene, viewpoints, radar).signal,
-            "kaczmarz": lambda: rj.solvers.kaczmarz(op, data, iterations=1, **quiet).rho,
-            "lsmr": lambda: rj.solvers.lsmr(op, data, iterations=2, check_every=2, **quiet).rho,
-            "fista": lambda: rj.solvers.fista(op, data, iterations=1, **quiet).rho,
-            "rift": lambda: rj.solvers.rift(op, data, epochs=1, width=8, depth=1, **quiet).rho,
+            "kaczmarz": lambda: rj.solvers.kaczmarz(op, data, iterations=3, **quiet).rho,
+            "lsmr": lambda: rj.solvers.lsmr(op, data, iterations=4, check_every=2, **quiet).rho,
+            "fista": lambda: rj.solvers.fista(op, data, iterations=3, **quiet).rho,
+            "rift": lambda: rj.solvers.rift(op, data, epochs=3, width=8, depth=1, **quiet).rho,
         }
 
-    for call in calls(0.3, 1.0, 1).values():  # first calls compile
-        jax.block_until_ready(call())
+    def compiles_step_once(name, step, call):
+        compiled = _compilations(caplog, call)
+        count = sum(m.startswith(f"Compiling jit({step})") for m in compiled)
+        assert count == 1, f"{name} compiled {step} {count} times in one run"
+
+    steps = {"kaczmarz": "_sweep", "lsmr": "_segment", "fista": "_update", "rift": "_step"}
+    for name, call in calls(0.3, 1.0, 1).items():  # first calls compile
+        if name in steps:
+            compiles_step_once(name, steps[name], call)
+        else:
+            jax.block_until_ready(call())
+    data = op.mv(rho)
+    gauss_newton = rj.solvers.gauss_newton  # tol=0: every step runs
+    compiles_step_once(
+        "gauss_newton",
+        "_step",
+        lambda: gauss_newton(op, data, iterations=3, inner=2, tol=0.0, **quiet).rho,
+    )
     smaller = rj.grt_operator(radar, viewpoints, points[:-1])  # the check can see one
     assert _compilations(caplog, lambda: smaller.mv(rho[:-1]))
     for name, call in calls(0.9, 2.0, np.int64(4)).items():

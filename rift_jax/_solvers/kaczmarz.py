@@ -7,12 +7,13 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Complex
 
 from .._operator import GRT, GRTOperator
 from .._precision import Float64Pair, exact_jit
-from .._sharding import VOXELS, device_mesh, pad_leading
+from .._sharding import DEVICES, device_mesh, pad_leading
 from ._common import check_problem, relative, residual_of, zero_signal
 from ._solution import Monitor, Solution, iterate
 
@@ -89,7 +90,7 @@ def kaczmarz(
     pad = -n_points % n_dev
     points = pad_leading(fn.points, pad, "edge")
     mask = jnp.arange(n_points + pad) < n_points  # padding voxels never move
-    x = pad_leading(x, pad, "constant")
+    x = _split_voxels(pad_leading(x, pad, "constant"))
     norm = jnp.linalg.norm(signal)
     rng = np.random.default_rng(seed)
     best = {"x": x, "residual": residual_of(fn, signal, x[:n_points])}
@@ -123,6 +124,15 @@ def kaczmarz(
     return Solution(x, history, stopped, stats)
 
 
+def _split_voxels(x):
+    """``x`` split over the devices as `_sweep` returns it, so that every sweep of a run,
+    the first included, sees one sharding and compiles once (a replicated start compiled the
+    sweep a second time)."""
+    if jax.device_count() == 1:
+        return x
+    return jax.device_put(x, NamedSharding(device_mesh(), P(DEVICES)))
+
+
 @exact_jit
 def _sweep(fn: GRT, points, mask, x, signal, order, lam):
     """One sweep, ``-> (ρ, ‖y − Aρ‖²)`` at the sweep's end, with the voxels (points, mask,
@@ -132,7 +142,7 @@ def _sweep(fn: GRT, points, mask, x, signal, order, lam):
 
     def body(points, mask, x, signal, order, lam):
         local = eqx.tree_at(lambda f: f.points, fn, points)
-        total = (lambda v: jax.lax.psum(v, VOXELS)) if n_dev > 1 else (lambda v: v)
+        total = (lambda v: jax.lax.psum(v, DEVICES)) if n_dev > 1 else (lambda v: v)
 
         def block(k, x):
             i = order[k]
@@ -154,10 +164,10 @@ def _sweep(fn: GRT, points, mask, x, signal, order, lam):
 
     if n_dev == 1:
         return body(points, mask, x, signal, order, lam)
-    voxels = P(VOXELS)
+    voxels = P(DEVICES)
     return jax.shard_map(
         body,
-        mesh=device_mesh(VOXELS),
+        mesh=device_mesh(),
         in_specs=(Float64Pair(voxels, voxels), voxels, voxels, P(), P(), P()),
         out_specs=(voxels, P()),
     )(points, mask, x, signal, order, lam)

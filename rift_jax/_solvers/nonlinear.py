@@ -16,6 +16,7 @@ from jaxtyping import Array, Complex
 
 from .._operator import GRTOperator
 from .._precision import exact_jit
+from .._sharding import replicated
 from .._validation import check_positive_int
 from ._common import (
     as_complex,
@@ -68,6 +69,8 @@ def gauss_newton(
     if (solution := zero_signal(where, signal, x)) is not None:
         return solution
     solver, residual, y, state = _problem(operator.fn, signal, x, inner, damped)
+    # placed as `_step` returns them, so that the first step does not compile apart
+    y, state = replicated((y, state))
     norm = jnp.linalg.norm(signal)
 
     def step(carry):
@@ -116,4 +119,7 @@ def _step(solver, residual, y, state):
     """One optimistix step: (y, state, ‖Aρ − y‖ at the new ρ)."""
     y, state, _ = solver.step(residual, y, None, {}, state, frozenset())
     r = residual(y, None)[0]
-    return y, state, jnp.sqrt(jnp.sum(r[0] ** 2) + jnp.sum(r[1] ** 2))
+    # replicated, as the first step's inputs are: the state holds residuals, which come out
+    # of the operator split over views or whole by the view count, and a new sharding
+    # would compile the step again
+    return replicated((y, state, jnp.sqrt(jnp.sum(r[0] ** 2) + jnp.sum(r[1] ** 2))))

@@ -17,6 +17,7 @@ from jaxtyping import Array, Complex
 
 from .._operator import GRTOperator
 from .._precision import exact_jit
+from .._sharding import replicated
 from .._validation import check_positive_int
 from ._common import as_complex, as_pair, check_problem, relative, residual_of, zero_signal
 from ._solution import History, Monitor, Solution, iterate
@@ -97,6 +98,7 @@ def fista(
     # the carry: (ρ_{k+1}, state, r(ρ_k), t_k, ρ_k); before the first step t_{-1} = 1 and
     # m = 0: FISTA's first extrapolated point is its start
     carry = (pair, state, jnp.zeros_like(signal), jnp.ones((), jnp.float32), pair)
+    carry = replicated(carry)  # placed as `_update` returns it (`_settled`)
     rho, history, stopped, stats = iterate(
         step,
         carry,
@@ -142,7 +144,18 @@ def _value_and_grad(pair, fn, signal):
 
 @exact_jit
 def _init(solver, pair, lam, fn, signal):
-    return solver.init_state(pair, lam, fn, signal)
+    # The state `_update` returns, in structure and types, so that every step runs one
+    # program: jaxopt's init stores the gradient as `aux` where its update stores our
+    # function's aux (the residual), and types some scalars weakly where update does not;
+    # and the residuals' sharding follows the view count.
+    state = solver.init_state(pair, lam, fn, signal)
+    return _settled(state._replace(aux=jnp.zeros_like(signal)))
+
+
+def _settled(tree):
+    """``tree`` without weak types and replicated (see `_init`): the residuals come out of
+    the operator split over views, or whole, by the view count."""
+    return replicated(jax.tree.map(lambda a: a.astype(a.dtype), tree))
 
 
 @exact_jit
@@ -152,7 +165,7 @@ def _update(solver, pair, state, misfit, t, lam, fn, signal):
     step = solver.update(pair, state, lam, fn, signal)
     m = (t - 1) / state.t  # y_k = ρ_k + m (ρ_k − ρ_{k−1})
     misfit = (step.state.aux + m * misfit) / (1 + m)  # aux: r(y_k)
-    return step.params, step.state, misfit, state.t, pair
+    return _settled((step.params, step.state, misfit, state.t, pair))
 
 
 @exact_jit
