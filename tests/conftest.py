@@ -18,6 +18,10 @@ if _OWNER:
 _CACHE = os.environ["RIFT_JAX_TEST_CACHE"]
 os.environ["JAX_COMPILATION_CACHE_DIR"] = _CACHE  # for the subprocesses tests start
 jax.config.update("jax_compilation_cache_dir", _CACHE)
+# every program, not only those over a second: the many small ones (a model's
+# initialisation, eager array operations) are the same in every process
+os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
 
 
 def pytest_sessionfinish(session):
