@@ -6,8 +6,8 @@ after `jax.distributed.initialize` they are every process's devices. Both splits
 `jax.shard_map` on one mesh, `device_mesh()`: one axis, `DEVICES`, over `jax.devices()`.
 One mesh, not one per split: an array's sharding names its mesh, and a jitted solver step
 whose input came out of one split and goes back in beside arrays placed by another would
-otherwise see a new sharding and compile again (every FISTA and Gauss-Newton run compiled
-its step twice or three times that way):
+otherwise see a new sharding and compile again (every FISTA run compiled its step a second
+time that way):
 
 - **over viewpoints** (`over_views`): independent views, one share per device; outputs are
   concatenated, or summed (a backprojection) with one `psum`;
@@ -56,8 +56,8 @@ def replicated(tree):
     registered implementation for ... GlobalToLocalShape"). A loop step that returns its
     carry through it, and starts from a carry placed by it, compiles once.
     """
-    if jax.device_count() == 1:
-        return tree
+    if jax.device_count() == 1 or jax.sharding.get_abstract_mesh().manual_axes:
+        return tree  # inside a `shard_map`, each device's values are its own
     arrays, rest = eqx.partition(tree, eqx.is_array)  # a solver state also holds functions
     everywhere = jax.sharding.NamedSharding(device_mesh(), P())
     if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(arrays)):

@@ -86,8 +86,6 @@ def fista(
     pair = as_pair(x)
     if nonnegative:
         pair = _prox_nonnegative(pair, 0.0)
-    state = _init(solver, pair, lam, fn, signal)
-
     last = {}
 
     def step(carry):
@@ -95,13 +93,9 @@ def fista(
         last["pair"] = carry[0]
         return carry, relative(jnp.linalg.norm(carry[2]), norm)  # of carry[4], the iterate
 
-    # the carry: (ρ_{k+1}, state, r(ρ_k), t_k, ρ_k); before the first step t_{-1} = 1 and
-    # m = 0: FISTA's first extrapolated point is its start
-    carry = (pair, state, jnp.zeros_like(signal), jnp.ones((), jnp.float32), pair)
-    carry = replicated(carry)  # placed as `_update` returns it (`_settled`)
     rho, history, stopped, stats = iterate(
         step,
-        carry,
+        _init(solver, pair, lam, fn, signal),
         iterations=iterations,
         tol=tol,
         progress=progress,
@@ -144,18 +138,24 @@ def _value_and_grad(pair, fn, signal):
 
 @exact_jit
 def _init(solver, pair, lam, fn, signal):
-    # The state `_update` returns, in structure and types, so that every step runs one
-    # program: jaxopt's init stores the gradient as `aux` where its update stores our
-    # function's aux (the residual), and types some scalars weakly where update does not;
-    # and the residuals' sharding follows the view count.
+    """The carry before the first step: t_{-1} = 1 and m = 0, so FISTA's first extrapolated
+    point is its start."""
     state = solver.init_state(pair, lam, fn, signal)
-    return _settled(state._replace(aux=jnp.zeros_like(signal)))
+    one = jnp.ones((), jnp.float32)
+    return _settled((pair, state, jnp.zeros_like(signal), one, pair))
 
 
-def _settled(tree):
-    """``tree`` without weak types and replicated (see `_init`): the residuals come out of
-    the operator split over views, or whole, by the view count."""
-    return replicated(jax.tree.map(lambda a: a.astype(a.dtype), tree))
+def _settled(carry):
+    """The carry (ρ_{k+1}, jaxopt's state, r(ρ_k), t_k, ρ_k) as every step takes it, so that
+    each step runs one program. jaxopt's init stores the gradient as `aux` where its update
+    stores our function's aux (the residual), and types some scalars weakly where update
+    does not. jaxopt never reads `aux`, so it becomes a scalar: a residual there would also
+    be copied to every device each step (it comes out of the operator split over views, or
+    whole, by the view count). Everything is strongly typed and replicated."""
+    params, state, misfit, t, pair = carry
+    state = state._replace(aux=jnp.zeros((), jnp.complex64))
+    carry = (params, state, misfit, t, pair)
+    return replicated(jax.tree.map(lambda a: a.astype(a.dtype), carry))
 
 
 @exact_jit
