@@ -35,6 +35,7 @@ from jax.sharding import AxisType
 from jax.sharding import PartitionSpec as P
 
 from ._precision import leading
+from ._validation import is_concrete
 
 DEVICES = "devices"
 
@@ -60,11 +61,20 @@ def replicated(tree):
         return tree  # inside a `shard_map`, each device's values are its own
     arrays, rest = eqx.partition(tree, eqx.is_array)  # a solver state also holds functions
     everywhere = jax.sharding.NamedSharding(device_mesh(), P())
-    if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(arrays)):
-        arrays = jax.lax.with_sharding_constraint(arrays, everywhere)
-    else:
+    if is_concrete(arrays):
         arrays = jax.device_put(arrays, everywhere)
+    else:
+        arrays = jax.lax.with_sharding_constraint(arrays, everywhere)
     return eqx.combine(arrays, rest)
+
+
+def split_over_devices(x):
+    """``x`` split along its leading axis (a multiple of the device count) over the
+    devices, as a `shard_map` over `DEVICES` returns it: a loop whose step returns its
+    carry split (Kaczmarz's ρ) starts from it so, and compiles once."""
+    if jax.device_count() == 1:
+        return x
+    return jax.device_put(x, jax.sharding.NamedSharding(device_mesh(), P(DEVICES)))
 
 
 def gathered(x):

@@ -7,13 +7,12 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, Complex
 
 from .._operator import GRT, GRTOperator
 from .._precision import Float64Pair, exact_jit
-from .._sharding import DEVICES, device_mesh, pad_leading
+from .._sharding import DEVICES, device_mesh, pad_leading, split_over_devices
 from ._common import check_problem, relative, residual_of, zero_signal
 from ._solution import Monitor, Solution, iterate
 
@@ -90,7 +89,8 @@ def kaczmarz(
     pad = -n_points % n_dev
     points = pad_leading(fn.points, pad, "edge")
     mask = jnp.arange(n_points + pad) < n_points  # padding voxels never move
-    x = _split_voxels(pad_leading(x, pad, "constant"))
+    # split as `_sweep` returns it: a replicated start compiled the sweep a second time
+    x = split_over_devices(pad_leading(x, pad, "constant"))
     norm = jnp.linalg.norm(signal)
     rng = np.random.default_rng(seed)
     best = {"x": x, "residual": residual_of(fn, signal, x[:n_points])}
@@ -122,15 +122,6 @@ def kaczmarz(
     )
     stats |= {"relaxations": relaxations, "undone": undone}
     return Solution(x, history, stopped, stats)
-
-
-def _split_voxels(x):
-    """``x`` split over the devices as `_sweep` returns it, so that every sweep of a run,
-    the first included, sees one sharding and compiles once (a replicated start compiled the
-    sweep a second time)."""
-    if jax.device_count() == 1:
-        return x
-    return jax.device_put(x, NamedSharding(device_mesh(), P(DEVICES)))
 
 
 @exact_jit
