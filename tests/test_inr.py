@@ -10,7 +10,14 @@ from conftest import random_complex
 
 import rift_jax as rj
 from rift_jax._solvers._common import as_complex, as_pair, realified
-from rift_jax._solvers.inr import _batches, _decay_mask, _optimizer, _step
+from rift_jax._solvers.inr import (
+    _batches,
+    _Candidates,
+    _decay_mask,
+    _optimizer,
+    _step,
+    _StepPoints,
+)
 from rift_jax._support import mask_at
 
 
@@ -196,8 +203,9 @@ def test_jit_step_equals_eager_step(tiny):
     recipe = rj.solvers.Recipe(batch_views=2, learning_rate=1e-2)
     optimizer = _optimizer(recipe, 8)
     state = optimizer.init(params)
-    args = (params, state, static, optimizer, recipe.loss_fn, operator.fn)
-    rest = (jnp.asarray(scene.points(), jnp.float32), jnp.asarray(signal), jnp.arange(2))
+    points = _StepPoints(operator.fn, jnp.asarray(scene.points(), jnp.float32))
+    args = (params, state, static, optimizer, recipe.loss_fn, points)
+    rest = (jnp.asarray(signal), jnp.arange(2))
     jitted = _step(*args, *rest)
     eager = _step.__wrapped__(*args, *rest)  # op by op, no outer jit
     for a, b in zip(jax.tree.leaves(jitted), jax.tree.leaves(eager), strict=True):
@@ -370,6 +378,41 @@ def test_an_active_set_of_every_point_changes_nothing(small_cube):
     assert pruned.stats["active_points"] == plain.stats["active_points"] == 729
     np.testing.assert_array_equal(pruned.history.loss, plain.history.loss)
     np.testing.assert_array_equal(pruned.scene.reflectivity, plain.scene.reflectivity)
+
+
+def test_a_padded_active_set_trains_as_the_set_itself(small_cube):
+    """An active set is padded (ρ = 0 on copies of its first point) to a size that changes
+    rarely, so that re-chosen sets of about the same size share one compiled step. The
+    padded step's loss, gradient and update are the set's own, within float32."""
+    radar, scene, train, _ = small_cube
+    operator = rj.grt_operator(radar, train, scene.points())
+    candidates = _Candidates(operator.fn, scene.points().astype(np.float64))
+    active = np.sort(np.random.default_rng(0).choice(729, 50, replace=False))
+    padded = candidates.restricted(active)
+    assert padded.n_points == 56 and int(padded.live.sum()) == 50
+    assert candidates.restricted(active[:30], padded).n_points == 56  # fits, over half full
+    assert candidates.restricted(active[:20], padded).n_points == 24  # under half: shrinks
+    assert candidates.restricted(np.arange(720), padded).n_points == 729  # at most all
+    plain = eqx.tree_at(
+        lambda p: p.points, operator.fn, jax.tree.map(lambda a: a[active], operator.fn.points)
+    )
+    plain = _StepPoints(plain, jnp.asarray(scene.points()[active], jnp.float32))
+    field = rj.Field(rj.RiftN(width=16, depth=2, key=jax.random.key(0)), extent=2.0, gain=3.0)
+    params, static = eqx.partition(field, eqx.is_inexact_array)
+    optimizer = _optimizer(rj.solvers.Recipe(learning_rate=1e-2), 3)
+    signal = jnp.asarray(rj.synthesize(scene, train, radar).signal)
+    common = (params, optimizer.init(params), static, optimizer, rj.losses.robust_loss)
+    ours, theirs = (_step(*common, p, signal, jnp.arange(10)) for p in (padded, plain))
+    for a, b in zip(jax.tree.leaves(ours), jax.tree.leaves(theirs), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-7)
+    grads = [jax.grad(lambda p, q=q: _loss(p, static, q, signal))(params) for q in (padded, plain)]
+    for a, b in zip(*map(jax.tree.leaves, grads), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
+
+
+def _loss(params, static, points, signal):
+    rho = points.render(eqx.combine(params, static))
+    return jnp.sum(jnp.abs(points.fn.subset(jnp.arange(10))(rho) - signal[:10]) ** 2)
 
 
 def test_pruning_trains_the_scene_on_fewer_points(small_cube):
