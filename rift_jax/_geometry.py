@@ -183,6 +183,12 @@ class Viewpoints:
         return f"Viewpoints(n={len(self)})"
 
 
+def spread(n: int, k: int) -> np.ndarray:
+    """The sorted indices of ``min(k, n)`` viewpoints spread evenly over ``range(n)`` (their
+    order): a sample of views that covers the angles the whole set covers."""
+    return np.unique(np.linspace(0, n - 1, min(k, n)).round()).astype(np.int64)
+
+
 def antenna_positions(
     radar: Radar, azimuth: float | Float[Array, ""], polar: float | Float[Array, ""]
 ) -> tuple[Float[Array, "n_tx 3"], Float[Array, "n_rx 3"]]:

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.ndimage
 
-from ._geometry import Radar, Viewpoints
+from ._geometry import Radar, Viewpoints, spread
 from ._operator import grt_operator
 from ._scenes import Scene
 from ._sharding import gathered
@@ -172,8 +172,7 @@ def estimate_support(
             f" for {len(viewpoints)} viewpoints, got {signal.shape}."
         )
     check_finite(signal, "estimate_support: `signal`")
-    rows = np.unique(np.linspace(0, len(viewpoints) - 1, min(max_views, len(viewpoints))).round())
-    rows = rows.astype(np.int64)
+    rows = spread(len(viewpoints), max_views)
     points = finer_points(grid, oversample)
     operator = grt_operator(radar, viewpoints[rows], points)
     back = np.abs(np.asarray(gathered(operator.fn.adjoint(jnp.asarray(signal[rows])))))

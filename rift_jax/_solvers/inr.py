@@ -29,6 +29,7 @@ import scipy.spatial
 from jaxtyping import Array, Complex, Float
 from tqdm.auto import tqdm
 
+from .._geometry import spread
 from .._losses import LOSSES
 from .._models import MODELS, AbstractINR, Field
 from .._operator import GRT, GRTOperator
@@ -336,7 +337,7 @@ def diagnose(
 
 def _check_collapse(solution: Solution, fn: GRT, signal, *, warm: bool) -> str | None:
     """`diagnose` for a trained run; ‖Aρ‖/‖y‖ from up to 10 evenly spread viewpoints."""
-    index = np.unique(np.linspace(0, fn.n_views - 1, min(10, fn.n_views)).round().astype(int))
+    index = spread(fn.n_views, 10)
     energy = float(_energy_ratio(*replicated((fn, solution.rho, signal, jnp.asarray(index)))))
     gain_ratio = float(abs(solution.field.gain)) / solution.stats["initial_gain"]
     return diagnose(solution.history.loss, solution.rho, energy, gain_ratio, warm=warm)
@@ -404,7 +405,7 @@ def _train(
                 f"{where}: `holdout` ({recipe.holdout}) must leave viewpoints to train on; "
                 f"there are {fn.n_views}."
             )
-        held = np.unique(np.linspace(0, fn.n_views - 1, recipe.holdout).round().astype(np.int64))
+        held = spread(fn.n_views, recipe.holdout)
     trained_views = np.setdiff1d(np.arange(fn.n_views), held)
     field = _initial_field(where, model, init, width, depth, extent, seed)
     if recipe.learning_rate is None:
