@@ -610,14 +610,15 @@ class _Candidates:
         An active set is padded to a size that changes rarely: the step is compiled for
         the number of points, and at the paper's cube each new size cost 7-10 s of
         compilation, against ~0.8 s per epoch (measured). ``current``'s size is kept
-        while the set fits in it and fills more than half of it; otherwise the set gets
-        the next size of a ladder growing ~1.25x (`_padded_size`). Padding repeats the
-        first active point with ρ = 0, so it adds nothing to the signals or gradients."""
+        while the set fits in it and fills at least two thirds of it (each step's cost
+        follows the padded size); otherwise the set gets the next size of a ladder growing
+        ~1.25x (`_padded_size`). Padding repeats the first active point with ρ = 0, so it
+        adds nothing to the signals or gradients."""
         if active is None:
             return replicated(_StepPoints(self.fn, self.coords))
         n, limit = len(active), len(self.points)
         size = None if current is None else current.n_points
-        if size is None or not n <= size < 2 * n:
+        if size is None or not n <= size <= 1.5 * n:
             size = min(_padded_size(n), limit)
         index = np.concatenate([active, np.full(size - n, active[0])])
         fn = eqx.tree_at(
