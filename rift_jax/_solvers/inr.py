@@ -608,12 +608,12 @@ class _Candidates:
         """The points a step trains: the active ones (all for None), replicated.
 
         An active set is padded to a size that changes rarely: the step is compiled for
-        the number of points, and at the paper's cube each new size cost 7-10 s of
-        compilation, against ~0.8 s per epoch (measured). ``current``'s size is kept
-        while the set fits in it and fills at least two thirds of it (each step's cost
-        follows the padded size); otherwise the set gets the next size of a ladder growing
-        ~1.25x (`_padded_size`). Padding repeats the first active point with ρ = 0, so it
-        adds nothing to the signals or gradients."""
+        the number of points, and at the paper's cube each new size added 6-9 s to its
+        epoch, against ~0.8 s for an epoch that compiles nothing (measured). ``current``'s
+        size is kept while the set fits in it and fills at least two thirds of it (each
+        step's cost follows the padded size); otherwise the set gets the next size of a
+        ladder growing ~1.25x (`_padded_size`). Padding repeats the first active point with
+        ρ = 0, so it adds nothing to the signals or gradients."""
         if active is None:
             return replicated(_StepPoints(self.fn, self.coords))
         n, limit = len(active), len(self.points)
