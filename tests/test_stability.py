@@ -54,7 +54,10 @@ def test_noise_degrades_smoothly_and_never_gives_nan(problem, method):
     """From noise-free data through 30, 20, 10 and 0 dB SNR the metrics stay finite and the
     m-SSIM falls (within a margin for run-to-run variation), never jumping up or to NaN."""
     scene, train, test = problem
-    options = {"iterations": 3} if method == "kaczmarz" else {"epochs": 10}
+    # RIFT for 30 epochs: after 10 its m-SSIM (~0.1) is training noise, so the noise-free
+    # run scored 0.12 on one device and -0.004 at 30 dB (it passed on two by luck); from
+    # ~30 epochs it is ~0.21-0.25 on 1 and 2 devices and falls with the SNR
+    options = {"iterations": 3} if method == "kaczmarz" else {"epochs": 30}
     ssim = []
     for snr in (None, 30.0, 20.0, 10.0, 0.0):
         result = rj.fit(
