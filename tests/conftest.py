@@ -1,3 +1,4 @@
+import logging
 import os
 import shutil
 import tempfile
@@ -69,3 +70,11 @@ def small_cube():
     scene = rj.scenes.cube(0.5, extent=2.0, edge=1.0)
     train, test = rj.Viewpoints.grid(8, 6, polar_range=(0.2, 1.4)).split(30, 6)
     return radar, scene, train, test
+
+
+def compilations(caplog, call) -> list[str]:
+    """The "Compiling ..." messages JAX logs while ``call()`` runs (to its results)."""
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="jax"), jax.log_compiles():
+        jax.block_until_ready(call())
+    return [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling")]

@@ -5,7 +5,6 @@ The device count is fixed when JAX starts, so each count runs in a fresh process
 (``RIFT_JAX_CPU_DEVICES``), which writes its results for this process to compare.
 """
 
-import logging
 import os
 import subprocess
 import sys
@@ -14,6 +13,7 @@ import textwrap
 import jax
 import numpy as np
 import pytest
+from conftest import compilations
 
 import rift_jax as rj
 from rift_jax import grt
@@ -90,28 +90,16 @@ def test_results_do_not_depend_on_the_device_count(by_device_count):
     np.testing.assert_array_equal(other["operator"], base["operator"])
 
 
-def _compilations(caplog, call) -> list[str]:
-    caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="jax"), jax.log_compiles():
-        jax.block_until_ready(call())
-    return [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling")]
-
-
 def test_plain_calls_compile_once(caplog):
     """A second plain call with new values of the same shapes compiles nothing (before the
-    kernels were jitted, every call traced and compiled the whole scan again: 0.8 s). The
-    solvers too, on a new signal; and within a run each compiles its iteration once (the
-    first FISTA step's state had another structure and sharding than the next ones', and
-    Kaczmarz's and Gauss-Newton's first iterate another sharding: each compiled its step
-    twice or three times). Gauss-Newton's step compiles once per run, see
-    `rift_jax._solvers.nonlinear`."""
+    kernels were jitted, every call traced and compiled the whole scan again: 0.8 s). For
+    the solvers: `tests/test_precision.py::test_what_each_solver_compiles`."""
     radar = rj.Radar(n_frequencies=6, n_tx=3, n_rx=4)
     points = rj.grid_points(1.0, 0.25)
     rho = np.ones(len(points), np.complex64)
     viewpoints = rj.Viewpoints.grid(3, 2)
     op = rj.grt_operator(radar, viewpoints, points)
     scene = rj.scenes.sphere(0.25, extent=1.0, radius=0.5)
-    quiet = {"progress": False}
 
     def calls(angle, scale, index):
         tx, rx = rj.antenna_positions(radar, angle, 1.1)
@@ -125,34 +113,14 @@ def test_plain_calls_compile_once(caplog):
             "view": lambda: op.fn.view(scale * rho, index),
             "view_adjoint": lambda: op.fn.view_adjoint(data[0], index),
             "synthesize": lambda: rj.synthesize(scene, viewpoints, radar).signal,
-            "kaczmarz": lambda: rj.solvers.kaczmarz(op, data, iterations=3, **quiet).rho,
-            "lsmr": lambda: rj.solvers.lsmr(op, data, iterations=4, check_every=2, **quiet).rho,
-            "fista": lambda: rj.solvers.fista(op, data, iterations=3, **quiet).rho,
-            "rift": lambda: rj.solvers.rift(op, data, epochs=3, width=8, depth=1, **quiet).rho,
         }
 
-    def compiles_step_once(name, step, call):
-        compiled = _compilations(caplog, call)
-        count = sum(m.startswith(f"Compiling jit({step})") for m in compiled)
-        assert count == 1, f"{name} compiled {step} {count} times in one run"
-
-    steps = {"kaczmarz": "_sweep", "lsmr": "_segment", "fista": "_update", "rift": "_step"}
-    for name, call in calls(0.3, 1.0, 1).items():  # first calls compile
-        if name in steps:
-            compiles_step_once(name, steps[name], call)
-        else:
-            jax.block_until_ready(call())
-    data = op.mv(rho)
-    gauss_newton = rj.solvers.gauss_newton  # tol=0: every step runs
-    compiles_step_once(
-        "gauss_newton",
-        "_step",
-        lambda: gauss_newton(op, data, iterations=3, inner=2, tol=0.0, **quiet).rho,
-    )
+    for call in calls(0.3, 1.0, 1).values():  # first calls compile
+        jax.block_until_ready(call())
     smaller = rj.grt_operator(radar, viewpoints, points[:-1])  # the check can see one
-    assert _compilations(caplog, lambda: smaller.mv(rho[:-1]))
+    assert compilations(caplog, lambda: smaller.mv(rho[:-1]))
     for name, call in calls(0.9, 2.0, np.int64(4)).items():
-        assert _compilations(caplog, call) == [], f"{name} compiled again"
+        assert compilations(caplog, call) == [], f"{name} compiled again"
 
 
 def test_the_multihost_example_matches_one_process(tmp_path):

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import random_complex
+from conftest import compilations, random_complex
 from jax.extend.core import ClosedJaxpr, Jaxpr
 
 import rift_jax as rj
@@ -168,31 +168,46 @@ def compiled(tmp_path):
     return Dump()
 
 
+# each solver's budget, and the jitted function its iterations run in
 METHODS = {
-    "kaczmarz": (solvers.kaczmarz, {"iterations": 1}),
-    "lsmr": (solvers.lsmr, {"iterations": 2, "check_every": 2}),
-    "gauss-newton": (solvers.gauss_newton, {"iterations": 1, "inner": 2}),
-    "fista": (solvers.fista, {"iterations": 1, "power_iterations": 1}),
-    "rift-n": (functools.partial(solvers.rift, model="rift-n"), {"epochs": 1}),
-    "rift-s": (functools.partial(solvers.rift, model="rift-s"), {"epochs": 1}),
+    "kaczmarz": (solvers.kaczmarz, {"iterations": 3}, "_sweep"),
+    "lsmr": (solvers.lsmr, {"iterations": 4, "check_every": 2}, "_segment"),
+    "gauss-newton": (solvers.gauss_newton, {"iterations": 3, "inner": 2, "tol": 0.0}, "_step"),
+    "fista": (solvers.fista, {"iterations": 3, "power_iterations": 1}, "_update"),
+    "rift-n": (functools.partial(solvers.rift, model="rift-n"), {"epochs": 2}, "_step"),
+    "rift-s": (functools.partial(solvers.rift, model="rift-s"), {"epochs": 2}, "_step"),
 }
 
 
 @pytest.mark.parametrize("method", METHODS)
-def test_what_each_solver_compiles(compiled, method):
+def test_what_each_solver_compiles(compiled, caplog, method):
     """A real run of each solver, on a problem size no other test uses (so that it compiles
-    here rather than hitting a cache): every product in every module XLA compiled for it."""
+    here rather than hitting a cache): every product in every module XLA compiled for it
+    asks for full precision, and its iteration compiled once (a first iterate of another
+    structure or sharding than the next ones' once compiled Kaczmarz's, FISTA's and
+    Gauss-Newton's step two or three times). A second run on a new signal compiles nothing
+    more; but Gauss-Newton's step, which compiles once per run (see
+    `rift_jax._solvers.nonlinear`), and with `tol=0` every step runs."""
     radar = rj.Radar(n_frequencies=7, n_tx=3, n_rx=5)
     viewpoints = rj.Viewpoints.grid(5, 1, polar_range=(0.8, 0.8))
     op = rj.grt_operator(radar, viewpoints, rj.grid_points(1.0, 0.4))
     signal = np.asarray(op.mv(jnp.ones(op.fn.n_points, jnp.complex64)))
-    solver, options = METHODS[method]
+    solver, options, step = METHODS[method]
+
+    def run(signal):
+        return lambda: solver(op, signal, progress=False, **options).rho
+
     with compiled:
-        solver(op, signal, progress=False, **options)
+        first = compilations(caplog, run(signal))
     found = [line for text in compiled.texts for line in lowered_products(text)]
     assert found, f"{method}: no matrix products compiled (cache hit?)"
     bad = [line for line in found if "precision = [HIGHEST, HIGHEST]" not in line]
     assert not bad, f"{method}: {len(bad)} of {len(found)} products: {bad[:2]}"
+    count = sum(m.startswith(f"Compiling jit({step})") for m in first)
+    assert count == 1, f"{method} compiled {step} {count} times in one run"
+    again = compilations(caplog, run(2 * signal))
+    expected = [m for m in again if m.startswith(f"Compiling jit({step})")]
+    assert again == (expected if method == "gauss-newton" else []), f"{method} compiled again"
 
 
 def test_the_lowered_reader_can_fail(compiled):
