@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+import rift_jax as rj
 from benchmarks import time_to_quality
 from experiments import runner
 
@@ -33,7 +34,7 @@ def test_every_method_is_traced_against_its_own_clock(quick):
         assert trace[-1]["seconds"] == pytest.approx(row["fit_seconds"])
         assert all(-1 <= r["m_ssim"] <= 1 and 0 <= r["p_rmse"] <= np.pi for r in trace)
         assert all(0 <= r["residual"] for r in trace)
-    assert max(len(row["trace"]) for row in results["rows"]) > 2  # sampled while running
+        assert trace[0]["seconds"] < trace[-1]["seconds"], row["run"]  # sampled while running
     assert results["notes"]["matmul_rate_gmacs"] > 0
     saved = json.loads((out / "results.json").read_text())
     assert saved["rows"] == json.loads(json.dumps(results["rows"]))
@@ -67,3 +68,22 @@ def test_reading_a_trace():
     assert time_to_quality.quality_at(trace, 0.5) is None
     assert time_to_quality.quality_at(trace, 60.0) == 0.85
     assert time_to_quality.quality_at(trace, 900.0) == 0.6  # what stopping then gives
+
+
+def test_a_trace_samples_on_its_time_ladder():
+    """Samples at the first iteration whose clock passes 0.25 s, then 0.375 s, 0.5625 s, ...
+    (one sample however many ladder steps an iteration jumps), and renders the current
+    reconstruction only then."""
+    truth = rj.scenes.cube(0.5, extent=1.0, edge=1.0)
+    views = rj.Viewpoints.grid(2, 2, polar_range=(0.4, 1.2))
+    trace = runner.Trace(truth, views, rj.Radar(n_frequencies=4, n_tx=2, n_rx=2), 0.5)
+    rendered = []
+
+    def current():
+        rendered.append(True)
+        return truth
+
+    for iteration, seconds in enumerate([0.1, 0.3, 0.35, 0.5, 1.0, 1.1], start=1):
+        trace(iteration, seconds, current)
+    assert [r["iteration"] for r in trace.records] == [2, 4, 5] and len(rendered) == 3
+    assert all(r["m_ssim"] == pytest.approx(1.0) and r["p_rmse"] < 1e-3 for r in trace.records)
