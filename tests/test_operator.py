@@ -105,25 +105,26 @@ def test_operator_rejects_bad_input(problem):
 
 def test_degenerate_geometry_stays_finite():
     """Coincident viewpoints, a single viewpoint and a single frequency are legitimate
-    (if poor) data: every method returns a finite reconstruction and finite metrics."""
+    (if poor) data: every method returns a finite reconstruction and finite metrics. Least
+    squares sees one frequency with both view cases (each case compiles every method);
+    RIFT, one case (4 frequencies: on one frequency and one view its loss is flat, a
+    collapse it retries and warns about)."""
     scene = rj.scenes.cube(0.5, extent=1.5)
     one = rj.Viewpoints(np.array([0.3]), np.array([1.1]))
     twice = rj.Viewpoints(np.array([0.3, 0.3]), np.array([1.1, 1.1]))
-    cases = [
-        (rj.Radar(n_frequencies=4, n_tx=2, n_rx=2), one),
-        (rj.Radar(n_frequencies=4, n_tx=2, n_rx=2), twice),
-        (rj.Radar(n_frequencies=1, n_tx=2, n_rx=2), rj.Viewpoints.grid(3, 2)),
+    single = rj.Radar(n_frequencies=1, n_tx=2, n_rx=2)
+    cases = [("kaczmarz", single, one, {"iterations": 3}), ("lsmr", single, one, {"iterations": 3})]
+    cases += [
+        ("kaczmarz", single, twice, {"iterations": 3}),
+        ("lsmr", single, twice, {"iterations": 3}),
     ]
-    budgets = {"kaczmarz": {"iterations": 3}, "lsmr": {"iterations": 3}, "rift-n": {"epochs": 3}}
-    for k, (radar, views) in enumerate(cases):
-        for method, options in budgets.items():
-            if method == "rift-n" and k:  # RIFT compiles per shape: one case is enough
-                continue
-            result = rj.fit(scene, views, radar=radar, method=method, progress=False, **options)
-            assert np.all(np.isfinite(np.asarray(result.scene.reflectivity))), method
-            metrics = result.evaluate(scene, views)
-            assert all(np.isfinite(v) for v in metrics.values()), (method, metrics)
-            assert method == "rift-n" or metrics["residual"] <= 1.0, (method, metrics)
+    cases += [("rift-n", rj.Radar(n_frequencies=4, n_tx=2, n_rx=2), one, {"epochs": 3})]
+    for method, radar, views, options in cases:
+        result = rj.fit(scene, views, radar=radar, method=method, progress=False, **options)
+        assert np.all(np.isfinite(np.asarray(result.scene.reflectivity))), method
+        metrics = result.evaluate(scene, views)
+        assert all(np.isfinite(v) for v in metrics.values()), (method, metrics)
+        assert method == "rift-n" or metrics["residual"] <= 1.0, (method, metrics)
 
 
 def test_lineax_variants_use_the_kernels_and_a_lineax_solver_runs():

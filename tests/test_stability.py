@@ -175,9 +175,9 @@ def test_a_flat_loss_is_retried_then_the_best_attempt_returned(tiny, caplog):
 # -- dynamic range ------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("ratio", [1.0, 0.1, 0.01])
+@pytest.mark.parametrize("ratio", [0.1, 0.01])
 def test_weak_target_down_to_1_to_100_is_located_at_its_ratio(ratio):
-    """The weak-target scene at 1:1, 1:10 and 1:100 on its own 0.24 m grid, from 40 views,
+    """The weak-target scene at 1:10 and 1:100 on its own 0.24 m grid, from 40 views,
     by LSMR on a slab holding both bars: the weak bar comes back at the truth's ratio, and
     well above the same box mirrored to the strong bar's other side (as far from it as the
     weak bar is): that control sees the strong bar's spill and the solver's error floor,
