@@ -1,7 +1,9 @@
 import logging
 import os
+import re
 import shutil
 import tempfile
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -70,6 +72,19 @@ def small_cube():
     scene = rj.scenes.cube(0.5, extent=2.0, edge=1.0)
     train, test = rj.Viewpoints.grid(8, 6, polar_range=(0.2, 1.4)).split(30, 6)
     return radar, scene, train, test
+
+
+def docs_blocks(page: str) -> list[str]:
+    """The ```python blocks of ``docs/<page>``, in order."""
+    text = (Path(__file__).resolve().parent.parent / "docs" / page).read_text()
+    return re.findall(r"```python\n(.*?)```", text, re.S)
+
+
+def run_docs_block(page: str, index: int) -> dict:
+    """Run block ``index`` of ``docs/<page>`` as written; returns its namespace."""
+    namespace: dict = {}
+    exec(compile(docs_blocks(page)[index], f"{page}[{index}]", "exec"), namespace)
+    return namespace
 
 
 def compilations(caplog, call) -> list[str]:

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import reference
-from conftest import random_complex
+from conftest import random_complex, run_docs_block
 
 import rift_jax as rj
 from rift_jax._solvers._common import as_complex, as_pair, realified
@@ -395,14 +395,14 @@ def test_pruning_trains_the_scene_on_fewer_points(small_cube):
         rj.solvers.Recipe(recheck_every=0)
 
 
-def test_coarse_to_fine_explains_what_the_coarse_grid_cannot(small_cube):
-    """Data made on a 0.5 m grid, inverse grid 1 m: trained on the inverse grid alone the
-    field cannot explain them; its last epochs on the 0.5 m points can. `scene` stays on the
-    inverse grid, and `predict` synthesises from `trained`."""
-    radar, scene, train, test = small_cube
-    common = dict(radar=radar, method="rift-n", granularity=1.0, epochs=80, progress=False)
-    coarse = rj.fit(scene, train, **common)
-    fine = rj.fit(scene, train, train_granularity=0.5, fine_epochs=60, prune=0.05, **common)
+def test_coarse_to_fine_explains_what_the_coarse_grid_cannot():
+    """docs/rift.md's coarse-to-fine example, as written: data made on a 0.5 m grid, inverse
+    grid 1 m. Trained on the inverse grid alone the field cannot explain them; its last
+    epochs on the 0.5 m points can. `scene` stays on the inverse grid, and `predict`
+    synthesises from `trained`."""
+    run = run_docs_block("rift.md", 1)
+    radar, scene, train, test = run["radar"], run["scene"], run["train"], run["test"]
+    coarse, fine, common = run["coarse"], run["fine"], run["options"]
     assert coarse.trained is None and fine.trained.shape == (9, 9, 9)
     assert fine.scene.shape == coarse.scene.shape == (5, 5, 5)
     assert fine.stats["fine_from_epoch"] == 21 and fine.stats["active_points"] < 729
