@@ -105,9 +105,10 @@ def test_mask_at_picks_the_nearest_voxel_on_a_grid_that_does_not_nest():
     np.testing.assert_array_equal(mask_at(mask, grid, points), inside & mask.ravel()[nearest])
 
 
-def test_bad_supports(small_cube):
+def test_bad_supports(small_cube, around_the_cube):
     radar, scene, train, _ = small_cube
-    fit = dict(radar=radar, method="lsmr", granularity=0.5, iterations=1, progress=False)
+    # the accepted supports below run the solve of the test above (the same compiled program)
+    fit = dict(radar=radar, method="lsmr", granularity=0.5, iterations=10, progress=False)
     for support, match in [
         (np.zeros(scene.shape, bool), "no points"),
         (np.ones((3, 3, 3), bool), "shape"),
@@ -117,8 +118,9 @@ def test_bad_supports(small_cube):
     ]:
         with pytest.raises(ValueError, match=match):
             rj.fit(scene, train, support=support, **fit)
-    mask = np.asarray(scene.reflectivity) != 0
-    result = rj.fit(scene, train, support=scene, **fit)  # a Scene on the same grid
+    mask = around_the_cube
+    as_scene = rj.Scene.from_array(mask.astype(np.complex64), scene.extent)  # the same grid
+    result = rj.fit(scene, train, support=as_scene, **fit)
     assert result.n_points == mask.sum()
     mask_copy = mask.copy()
     other = rj.fit(scene, train, support=mask_copy, x0=np.zeros(mask.size), **fit)
