@@ -87,3 +87,38 @@ def test_a_trace_samples_on_its_time_ladder():
         trace(iteration, seconds, current)
     assert [r["iteration"] for r in trace.records] == [2, 4, 5] and len(rendered) == 3
     assert all(r["m_ssim"] == pytest.approx(1.0) and r["p_rmse"] < 1e-3 for r in trace.records)
+
+
+def test_the_compile_profile_attributes_compilation_to_the_running_test(tmp_path, monkeypatch):
+    """tests/compile_profile.py (the pytest plugin behind the suite's time budget): a program
+    compiled while a test runs is charged to that test, and the report ranks tests by time."""
+    import collections
+
+    import compile_profile as profile
+    import jax
+    import jax.numpy as jnp
+    from jax import monitoring
+
+    fresh = collections.defaultdict  # the plugin's own tables are the suite's, if it is on
+    monkeypatch.setattr(profile, "_seconds", fresh(lambda: fresh(float)))
+    monkeypatch.setattr(profile, "_counts", fresh(lambda: fresh(int)))
+    monitoring.register_event_duration_secs_listener(profile._listen)
+    try:
+        profile.pytest_runtest_protocol(type("Item", (), {"nodeid": "t::fast"})(), None)
+        c = float(np.random.default_rng().uniform())  # a new program: no cache can hold it
+        jax.jit(lambda x: jnp.sin(x) * c + 1.25)(jnp.arange(7.0)).block_until_ready()
+        profile.pytest_runtest_logfinish("t::fast", None)
+    finally:
+        monitoring.unregister_event_duration_listener(profile._listen)
+    charged = profile._seconds["t::fast"]
+    assert (
+        charged["compile|jit(<lambda>)"] > 0
+        and charged["wall|"] >= charged["compile|jit(<lambda>)"]
+    )
+    monkeypatch.setenv("PYTEST_XDIST_WORKER", "gw7")
+    monkeypatch.setattr(profile, "FOLDER", tmp_path)
+    profile.pytest_sessionfinish(None)
+    (tmp_path / "gw8.json").write_text(json.dumps({"t::slow": {"wall|": [100.0, 1]}}))
+    text = profile.report(tmp_path, top=5)
+    assert text.startswith("2 tests,") and text.index("t::slow") < text.index("t::fast")
+    assert "<lambda>" in text.split("t::fast")[1]  # among its costliest programs
