@@ -42,11 +42,14 @@ def _listen(event: str, duration: float, **kwargs) -> None:
 def pytest_configure(config):
     from jax import monitoring
 
+    if "PYTEST_XDIST_WORKER" not in os.environ:  # the controller: a new run, new files
+        for old in FOLDER.glob("*.json"):
+            old.unlink()
     monitoring.register_event_duration_secs_listener(_listen)
 
 
-def pytest_runtest_protocol(item, nextitem):
-    _current[:] = [item.nodeid, time.perf_counter()]  # then pytest runs the test
+def pytest_runtest_logstart(nodeid, location):
+    _current[:] = [nodeid, time.perf_counter()]
 
 
 def pytest_runtest_logfinish(nodeid, location):
@@ -56,7 +59,7 @@ def pytest_runtest_logfinish(nodeid, location):
 
 
 def pytest_sessionfinish(session):
-    FOLDER.mkdir(exist_ok=True)
+    FOLDER.mkdir(parents=True, exist_ok=True)
     worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
     merged = {
         test: {key: [seconds, _counts[test][key]] for key, seconds in by_key.items()}

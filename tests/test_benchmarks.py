@@ -102,9 +102,10 @@ def test_the_compile_profile_attributes_compilation_to_the_running_test(tmp_path
     fresh = collections.defaultdict  # the plugin's own tables are the suite's, if it is on
     monkeypatch.setattr(profile, "_seconds", fresh(lambda: fresh(float)))
     monkeypatch.setattr(profile, "_counts", fresh(lambda: fresh(int)))
+    monkeypatch.setattr(profile, "_current", [])
     monitoring.register_event_duration_secs_listener(profile._listen)
     try:
-        profile.pytest_runtest_protocol(type("Item", (), {"nodeid": "t::fast"})(), None)
+        profile.pytest_runtest_logstart("t::fast", None)
         c = float(np.random.default_rng().uniform())  # a new program: no cache can hold it
         jax.jit(lambda x: jnp.sin(x) * c + 1.25)(jnp.arange(7.0)).block_until_ready()
         profile.pytest_runtest_logfinish("t::fast", None)

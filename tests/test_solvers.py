@@ -69,7 +69,7 @@ def test_tolerance_stops_early(problem):
         operator, signal, iterations=200, check_every=10, tol=0.5, progress=False
     )  # checks every 10 steps, as the `solutions` runs do: the same compiled segment
     assert solution.stopped.outcome is rj.solvers.Outcome.CONVERGED
-    assert len(solution.history) < 40
+    assert len(solution.history) < 200 // 10  # one entry per check: stopped before the budget
 
 
 def test_kaczmarz_seeded(problem):

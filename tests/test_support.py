@@ -107,7 +107,8 @@ def test_mask_at_picks_the_nearest_voxel_on_a_grid_that_does_not_nest():
 
 def test_bad_supports(small_cube, around_the_cube):
     radar, scene, train, _ = small_cube
-    # the accepted supports below run the solve of the test above (the same compiled program)
+    # the accepted supports below reuse the 10-step LSMR segment compiled by
+    # test_a_support_holding_the_scene_gives_the_full_grid_answer
     fit = dict(radar=radar, method="lsmr", granularity=0.5, iterations=10, progress=False)
     for support, match in [
         (np.zeros(scene.shape, bool), "no points"),
@@ -167,8 +168,8 @@ def test_auto_support_keeps_every_true_voxel():
     train, _ = rj.Viewpoints.grid().split(60, 1, seed=0)
     grid = rj.Scene.empty(2.0, 0.4)
     scenes = _box_scenes(2.0)
-    # `synthesize` on each scene's occupied points, padded with ρ = 0 to one count, so that
-    # one forward is compiled for all eight scenes (the estimate is scale-free)
+    # `synthesize`'s sum before it normalises, on each scene's occupied points padded with
+    # ρ = 0 to one count: one forward compiled for all eight scenes (the estimate is scale-free)
     size = max(np.count_nonzero(scene.reflectivity) for scene in scenes.values())
     lost_coarse = 0
     for name, scene in scenes.items():
