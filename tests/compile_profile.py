@@ -74,15 +74,20 @@ def report(folder: Path, top: int) -> str:
         tests |= json.loads(file.read_text())
     rows, totals = [], collections.Counter()
     for test, by_key in tests.items():
-        stage = collections.Counter()
-        programs = collections.Counter()
-        for key, (seconds, _) in by_key.items():
+        stage, programs, compiled = (
+            collections.Counter(),
+            collections.Counter(),
+            collections.Counter(),
+        )
+        for key, (seconds, count) in by_key.items():
             kind, name = key.split("|", 1)
             stage[kind] += seconds
             if kind != "wall":  # one name per program: JAX says "f" tracing, "jit(f)" after
-                programs[name[4:-1] if name.startswith("jit(") else name] += seconds
+                name = name[4:-1] if name.startswith("jit(") else name
+                programs[name] += seconds
+                compiled[name] += count if kind == "compile" else 0
         totals.update(stage)
-        rows.append((stage["wall"], stage, programs, test))
+        rows.append((stage["wall"], stage, programs, compiled, test))
     rows.sort(key=lambda row: -row[0])
     jax_time = totals["trace"] + totals["lower"] + totals["compile"]
     lines = [
@@ -90,11 +95,13 @@ def report(folder: Path, top: int) -> str:
         f"traced {totals['trace']:.0f} s, lowered {totals['lower']:.0f} s, compiled "
         f"{totals['compile']:.0f} s ({jax_time / max(totals['wall'], 1e-9):.0%})",
         "",
-        "| wall s | trace + lower + compile s | test | costliest programs (s) |",
+        "| wall s | trace + lower + compile s | test | costliest programs (s, compilations) |",
         "|---|---|---|---|",
     ]
-    for wall, stage, programs, test in rows[:top]:
-        costly = ", ".join(f"{name} {s:.1f}" for name, s in programs.most_common(3))
+    for wall, stage, programs, compiled, test in rows[:top]:
+        costly = ", ".join(
+            f"{name} {s:.1f} ×{compiled[name]}" for name, s in programs.most_common(3)
+        )
         spent = stage["trace"] + stage["lower"] + stage["compile"]
         lines.append(f"| {wall:.1f} | {spent:.1f} | {test} | {costly} |")
     return "\n".join(lines)

@@ -122,4 +122,5 @@ def test_the_compile_profile_attributes_compilation_to_the_running_test(tmp_path
     (tmp_path / "gw8.json").write_text(json.dumps({"t::slow": {"wall|": [100.0, 1]}}))
     text = profile.report(tmp_path, top=5)
     assert text.startswith("2 tests,") and text.index("t::slow") < text.index("t::fast")
-    assert "<lambda>" in text.split("t::fast")[1]  # among its costliest programs
+    assert "<lambda> " in text.split("t::fast")[1]  # among its costliest programs, compiled once
+    assert "×1" in text.split("t::fast")[1]

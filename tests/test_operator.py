@@ -113,12 +113,8 @@ def test_degenerate_geometry_stays_finite():
     one = rj.Viewpoints(np.array([0.3]), np.array([1.1]))
     twice = rj.Viewpoints(np.array([0.3, 0.3]), np.array([1.1, 1.1]))
     single = rj.Radar(n_frequencies=1, n_tx=2, n_rx=2)
-    cases = [("kaczmarz", single, one, {"iterations": 3}), ("lsmr", single, one, {"iterations": 3})]
-    cases += [
-        ("kaczmarz", single, twice, {"iterations": 3}),
-        ("lsmr", single, twice, {"iterations": 3}),
-    ]
-    cases += [("rift-n", rj.Radar(n_frequencies=4, n_tx=2, n_rx=2), one, {"epochs": 3})]
+    cases = [(m, single, v, {"iterations": 3}) for v in (one, twice) for m in ("kaczmarz", "lsmr")]
+    cases.append(("rift-n", rj.Radar(n_frequencies=4, n_tx=2, n_rx=2), one, {"epochs": 3}))
     for method, radar, views, options in cases:
         result = rj.fit(scene, views, radar=radar, method=method, progress=False, **options)
         assert np.all(np.isfinite(np.asarray(result.scene.reflectivity))), method

@@ -174,8 +174,8 @@ def test_auto_support_keeps_every_true_voxel():
     lost_coarse = 0
     for name, scene in scenes.items():
         points, rho = scene.occupied()
-        points = np.concatenate([points, np.repeat(points[:1], size - len(points), 0)])
-        rho = np.concatenate([rho, np.zeros(size - len(rho), rho.dtype)])
+        points = np.pad(points, ((0, size - len(points)), (0, 0)), mode="edge")
+        rho = np.pad(rho, (0, size - len(rho)))
         signal = rj.grt_operator(radar, train, points).mv(rho)
         truth = _true_voxels(scene, grid)
         mask = rj.estimate_support(signal, train, grid, radar=radar)
