@@ -28,6 +28,7 @@ STAGES = {  # JAX's duration events, by the name this profile gives them
 }
 
 _current: list = []  # [test id, its start time] while a test runs
+_controller: list = []  # [True] in xdist's controller: it runs no test, workers report to it
 _seconds: dict = collections.defaultdict(lambda: collections.defaultdict(float))
 _counts: dict = collections.defaultdict(lambda: collections.defaultdict(int))
 
@@ -42,14 +43,17 @@ def _listen(event: str, duration: float, **kwargs) -> None:
 def pytest_configure(config):
     from jax import monitoring
 
-    if "PYTEST_XDIST_WORKER" not in os.environ:  # the controller: a new run, new files
+    if "PYTEST_XDIST_WORKER" not in os.environ:  # the first process: a new run, new files
         for old in FOLDER.glob("*.json"):
             old.unlink()
+        if config.getoption("dist", "no") != "no":  # it sees the workers' tests, not their time
+            _controller.append(True)
     monitoring.register_event_duration_secs_listener(_listen)
 
 
 def pytest_runtest_logstart(nodeid, location):
-    _current[:] = [nodeid, time.perf_counter()]
+    if not _controller:
+        _current[:] = [nodeid, time.perf_counter()]
 
 
 def pytest_runtest_logfinish(nodeid, location):
@@ -59,6 +63,8 @@ def pytest_runtest_logfinish(nodeid, location):
 
 
 def pytest_sessionfinish(session):
+    if _controller:
+        return
     FOLDER.mkdir(parents=True, exist_ok=True)
     worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
     merged = {

@@ -89,7 +89,9 @@ def test_a_trace_samples_on_its_time_ladder():
     assert all(r["m_ssim"] == pytest.approx(1.0) and r["p_rmse"] < 1e-3 for r in trace.records)
 
 
-def test_the_compile_profile_attributes_compilation_to_the_running_test(tmp_path, monkeypatch):
+def test_the_compile_profile_attributes_compilation_to_the_running_test(
+    tmp_path, monkeypatch, request
+):
     """tests/compile_profile.py (the pytest plugin behind the suite's time budget): a program
     compiled while a test runs is charged to that test, and the report ranks tests by time."""
     import collections
@@ -103,14 +105,17 @@ def test_the_compile_profile_attributes_compilation_to_the_running_test(tmp_path
     monkeypatch.setattr(profile, "_seconds", fresh(lambda: fresh(float)))
     monkeypatch.setattr(profile, "_counts", fresh(lambda: fresh(int)))
     monkeypatch.setattr(profile, "_current", [])
-    monitoring.register_event_duration_secs_listener(profile._listen)
+    listening = request.config.pluginmanager.hasplugin("compile_profile")  # (-p): it listens
+    if not listening:
+        monitoring.register_event_duration_secs_listener(profile._listen)
     try:
         profile.pytest_runtest_logstart("t::fast", None)
         c = float(np.random.default_rng().uniform())  # a new program: no cache can hold it
         jax.jit(lambda x: jnp.sin(x) * c + 1.25)(jnp.arange(7.0)).block_until_ready()
         profile.pytest_runtest_logfinish("t::fast", None)
     finally:
-        monitoring.unregister_event_duration_listener(profile._listen)
+        if not listening:
+            monitoring.unregister_event_duration_listener(profile._listen)
     charged = profile._seconds["t::fast"]
     assert (
         charged["compile|jit(<lambda>)"] > 0
