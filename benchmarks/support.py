@@ -4,6 +4,7 @@ need).
 
     python -m benchmarks.support [--repeats 3] [--epochs 100] [--full-epochs 2]
     python -m benchmarks.support --coverage
+    python -m benchmarks.support --screen
 
 Workload: the cube (2 m, ρ = 1) synthesised on the paper's forward grid (0.2 m over ±5 m,
 51³), reconstructed on its inverse grid (0.4 m, 26³ = 17,576 points) from 100 training
@@ -25,6 +26,14 @@ viewpoints, scored on 100 others. Prints, in one run:
 ``--coverage`` instead checks ``support="auto"`` on the paper's five scenes and on random
 box scenes (ρ from 0.25 to 1, seeds 0-9; the defaults were chosen on the paper's scenes and
 seeds 0-3), each from 100 views: points kept, true voxels lost, seconds.
+
+``--screen`` measures whether a cheaper backprojection could screen the grid before the
+full one (issue 12, item 4: fewer antenna pairs or frequencies, only where it pays). On the
+cube and the sphere it backprojects through exact sub-radars (every k-th element of each
+arm, every j-th frequency: the same antennas and frequencies, fewer of them) and prints
+their seconds and how selective they are: the threshold, relative to their own peak, that
+keeps every voxel the full backprojection puts above its threshold, and how many voxels
+pass it.
 """
 
 from __future__ import annotations
@@ -39,7 +48,7 @@ import scipy.ndimage
 
 import rift_jax as rj
 from rift_jax._scenes import _scene_from_boxes
-from rift_jax._support import voxels_holding
+from rift_jax._support import pooled_backprojection, voxels_holding
 
 from ._timing import complex_matmul_rate, median_seconds
 
@@ -90,12 +99,72 @@ def coverage(radar, train, grid) -> dict:
     return out
 
 
+def sub_radar(radar: rj.Radar, stride: int, frequency_stride: int):
+    """(a Radar, its rows of the full radar's signals): every ``stride``-th element of each
+    arm and every ``frequency_stride``-th frequency. Element m sits at s·(m + 1/2), so with
+    an odd stride the kept ones, m = (stride − 1)/2 + stride·i, are where a Radar of spacing
+    stride·s puts its own; the frequency stride must divide n_frequencies − 1 (both ends
+    kept)."""
+    if stride % 2 == 0 or (radar.n_frequencies - 1) % frequency_stride:
+        raise ValueError(f"no exact sub-radar for strides {stride}, {frequency_stride}")
+    tx = np.arange((stride - 1) // 2, radar.n_tx, stride)
+    rx = np.arange((stride - 1) // 2, radar.n_rx, stride)
+    f = np.arange(0, radar.n_frequencies, frequency_stride)
+    sub = rj.Radar(
+        n_frequencies=len(f),
+        f_min=radar.f_min,
+        f_max=radar.f_max,
+        n_tx=len(tx),
+        n_rx=len(rx),
+        spacing=stride * radar.spacing,
+        distance=radar.distance,
+        near_field=radar.near_field,
+    )
+    return sub, np.ix_(np.arange(radar.n_frequencies)[f], tx, rx)
+
+
+SCREENS = ((3, 1), (3, 3), (5, 9))  # (element stride, frequency stride)
+
+
+def screen(radar, train, grid, threshold: float = 0.15) -> dict:
+    out = {}
+    for name in ("cube", "sphere"):
+        signal = np.asarray(rj.synthesize(getattr(rj.scenes, name)(0.2), train, radar).signal)
+        start = time.perf_counter()
+        full = pooled_backprojection(signal, train, grid, radar, 2, 100)
+        seconds = time.perf_counter() - start
+        kept = full >= threshold * full.max()
+        out[name] = {"full": {"seconds": seconds, "voxels": int(kept.sum())}}
+        print(f"{name}: full radar {seconds:.1f} s, {kept.sum()} voxels ≥ {threshold}", flush=True)
+        for stride, frequency_stride in SCREENS:
+            sub, rows = sub_radar(radar, stride, frequency_stride)
+            start = time.perf_counter()
+            image = pooled_backprojection(signal[(slice(None), *rows)], train, grid, sub, 2, 100)
+            seconds = time.perf_counter() - start
+            image /= image.max()
+            needed = float(image[kept].min())
+            passing = int(np.sum(image >= needed))
+            out[name][f"{stride},{frequency_stride}"] = {
+                "seconds": seconds,
+                "needed_threshold": needed,
+                "voxels": passing,
+            }
+            print(
+                f"  {sub.n_tx}x{sub.n_rx} elements, {sub.n_frequencies} frequencies: "
+                f"{seconds:.1f} s; keeps them all from {needed:.3f} of its peak, where "
+                f"{passing} of {image.size} voxels pass",
+                flush=True,
+            )
+    return out
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--epochs", type=int, default=100)
     parser.add_argument("--full-epochs", type=int, default=2)
     parser.add_argument("--coverage", action="store_true")
+    parser.add_argument("--screen", action="store_true")
     args = parser.parse_args(argv)
     if args.full_epochs < 2:
         parser.error("--full-epochs must be at least 2 (the first epoch compiles)")
@@ -106,6 +175,8 @@ def main(argv=None) -> dict:
     grid = rj.Scene.empty(5.0, 0.4)
     if args.coverage:
         return coverage(radar, train, grid)
+    if args.screen:
+        return screen(radar, train, grid)
     support = cube_support(scene, grid)
     out = {"support_points": int(support.sum()), "grid_points": int(support.size)}
     print(f"support: {support.sum()} of {support.size} points")

@@ -172,13 +172,7 @@ def estimate_support(
             f" for {len(viewpoints)} viewpoints, got {signal.shape}."
         )
     check_finite(signal, "estimate_support: `signal`")
-    rows = spread(len(viewpoints), max_views)
-    points = finer_points(grid, oversample)
-    operator = grt_operator(radar, viewpoints[rows], points)
-    back = np.abs(np.asarray(gathered(operator.fn.adjoint(jnp.asarray(signal[rows])))))
-    pooled = np.zeros(grid.shape, np.float64)
-    for index, inside in nearest_voxels(grid, points):
-        np.maximum.at(pooled, tuple(index[inside].T), back[inside])
+    pooled = pooled_backprojection(signal, viewpoints, grid, radar, oversample, max_views)
     peak = pooled.max()
     if peak == 0:
         raise ValueError("estimate_support: `signal` is zero; there is nothing to find.")
@@ -187,3 +181,17 @@ def estimate_support(
         mask = scipy.ndimage.binary_dilation(mask, iterations=dilation)
     mask.setflags(write=False)
     return mask
+
+
+def pooled_backprojection(signal, viewpoints, grid, radar, oversample, max_views) -> np.ndarray:
+    """Steps 1-2 of `estimate_support` (inputs checked there): |Aᴴ y| from at most
+    ``max_views`` viewpoints on `finer_points`, each voxel of ``grid`` given the largest value
+    among the fine points nearest to it. Float64, of ``grid.shape``, not normalised."""
+    rows = spread(len(viewpoints), max_views)
+    points = finer_points(grid, oversample)
+    operator = grt_operator(radar, viewpoints[rows], points)
+    back = np.abs(np.asarray(gathered(operator.fn.adjoint(jnp.asarray(signal[rows])))))
+    pooled = np.zeros(grid.shape, np.float64)
+    for index, inside in nearest_voxels(grid, points):
+        np.maximum.at(pooled, tuple(index[inside].T), back[inside])
+    return pooled
