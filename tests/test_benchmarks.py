@@ -129,3 +129,23 @@ def test_the_compile_profile_attributes_compilation_to_the_running_test(
     assert text.startswith("2 tests,") and text.index("t::slow") < text.index("t::fast")
     assert "<lambda> " in text.split("t::fast")[1]  # among its costliest programs, compiled once
     assert "×1" in text.split("t::fast")[1]
+
+
+def test_a_sub_radar_sees_what_the_full_radar_sees_on_its_antennas_and_frequencies():
+    """`benchmarks.support --screen` measures sub-radars as exact subsets of the full one:
+    their signals are the full radar's at the kept elements and frequencies."""
+    from benchmarks.support import sub_radar
+
+    radar = rj.Radar(n_frequencies=7, n_tx=7, n_rx=5)
+    points = rj.grid_points(1.0, 0.5)
+    rho = np.random.default_rng(0).normal(size=len(points)).astype(np.complex64)
+    views = rj.Viewpoints.grid(2, 2)
+    sub, rows = sub_radar(radar, 3, 3)
+    assert (sub.n_tx, sub.n_rx, sub.n_frequencies) == (2, 2, 3)
+    full = np.asarray(rj.grt_operator(radar, views, points).mv(rho))
+    part = np.asarray(rj.grt_operator(sub, views, points).mv(rho))
+    np.testing.assert_allclose(
+        part, full[(slice(None), *rows)], rtol=0, atol=1e-5 * abs(full).max()
+    )
+    with pytest.raises(ValueError, match="no exact sub-radar"):
+        sub_radar(radar, 2, 3)
