@@ -100,11 +100,11 @@ def coverage(radar, train, grid) -> dict:
 
 
 def sub_radar(radar: rj.Radar, stride: int, frequency_stride: int):
-    """(a Radar, its rows of the full radar's signals): every ``stride``-th element of each
-    arm and every ``frequency_stride``-th frequency. Element m sits at s·(m + 1/2), so with
-    an odd stride the kept ones, m = (stride − 1)/2 + stride·i, are where a Radar of spacing
-    stride·s puts its own; the frequency stride must divide n_frequencies − 1 (both ends
-    kept)."""
+    """(a Radar, the (frequency, tx, rx) index arrays that cut its signals out of the full
+    radar's): every ``stride``-th element of each arm and every ``frequency_stride``-th
+    frequency. Element m sits at s·(m + 1/2), so with an odd stride the kept ones,
+    m = (stride − 1)/2 + stride·i, are where a Radar of spacing stride·s puts its own; the
+    frequency stride must divide n_frequencies − 1 (both ends kept)."""
     if stride % 2 == 0 or (radar.n_frequencies - 1) % frequency_stride:
         raise ValueError(f"no exact sub-radar for strides {stride}, {frequency_stride}")
     tx = np.arange((stride - 1) // 2, radar.n_tx, stride)
@@ -120,7 +120,7 @@ def sub_radar(radar: rj.Radar, stride: int, frequency_stride: int):
         distance=radar.distance,
         near_field=radar.near_field,
     )
-    return sub, np.ix_(np.arange(radar.n_frequencies)[f], tx, rx)
+    return sub, np.ix_(f, tx, rx)
 
 
 SCREENS = ((3, 1), (3, 3), (5, 9))  # (element stride, frequency stride)
