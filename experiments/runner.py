@@ -455,14 +455,16 @@ def execute(
     volumes: dict[str, np.ndarray] = {}
     if resume and (out / "results.json").exists():
         done = json.loads((out / "results.json").read_text())
-        if (done["config"], done["seed"]) != (config, seed):
+        if done["seed"] != seed or not _extends(config, done["config"]):
             raise SystemExit(
                 f"--resume: {out / 'results.json'} was measured with another config or seed; "
                 "choose another --out or drop --resume."
             )
+        done["rows"] = [_upgrade(row) for row in done["rows"]]
+        _check_kept(done["rows"], runs, seed, out / "results.json")
         if not (out / "reconstructions.npz").exists():
             raise SystemExit(f"--resume: {out / 'reconstructions.npz'} is missing.")
-        results = done
+        results = done | {"config": config}  # what the file now holds: kept runs and new
         with np.load(out / "reconstructions.npz") as saved:
             volumes = {key: saved[key] for key in saved.files}
         results.setdefault("resumed_with", []).append(versions())  # the first run's stay
@@ -545,6 +547,58 @@ def execute(
         save(final=False)
     save(final=True)
     return results
+
+
+def _extends(config, saved) -> bool:
+    """``config`` is ``saved`` with, at most, settings added that ``saved`` lacks: options the
+    experiment gained since the file was written (new runs, such as FISTA's, and their
+    budget). Any setting ``saved`` has must be unchanged."""
+    if isinstance(saved, dict):
+        return isinstance(config, dict) and all(
+            key in config and _extends(config[key], value) for key, value in saved.items()
+        )
+    return config == saved
+
+
+def _upgrade(row: dict) -> dict:
+    """A row as this version writes it. Rows from before typed outcomes (95641d3) said why a
+    run ended in free text, and held a divergence's message under "diverged"."""
+    if not isinstance(row["stopped"], str):
+        return row
+    legacy, row = row["stopped"], {k: v for k, v in row.items() if k != "diverged"}
+    Outcome = rj.solvers.Outcome
+    outcome = {"iterations": Outcome.BUDGET, "epochs": Outcome.BUDGET}.get(legacy)
+    at = row["iterations"]
+    if legacy == "tolerance":
+        outcome = Outcome.CONVERGED
+    elif legacy == "zero signal":
+        outcome, at = Outcome.ZERO_SIGNAL, 0
+    elif legacy.startswith("diverged at epoch "):
+        outcome, at = Outcome.DIVERGED, int(legacy.rsplit(" ", 1)[1])
+    if outcome is None:
+        raise SystemExit(f"--resume: a run ended with {legacy!r}, which this version cannot read.")
+    return row | {"stopped": rj.solvers.Stop(outcome, at).to_json()}
+
+
+def _check_kept(rows: list[dict], runs: list[Run], seed: int, path: Path) -> None:
+    """Every saved row is a run still asked for, with the method, views, options and seed it
+    would get now; otherwise resuming would mix two protocols in one table."""
+    asked = {(run.scene, run.label): run for run in runs}
+    for row in rows:
+        run = asked.get((row["scene"], row["run"]))
+        now = run and {
+            "method": run.method,
+            "n_train": run.n_train,
+            "options": json.loads(json.dumps(dict(run.options))),  # as the file holds them
+            "seed": seed if run.seed is None else run.seed,
+        }
+        saved = {"seed": seed} | row  # a row written before rows kept their seed: the file's
+        if not now or any(saved.get(key) != value for key, value in now.items()):
+            raise SystemExit(
+                f"--resume: {path}'s run {row['scene']}/{row['run']} is not one this config "
+                "asks for, or was made with other settings; choose another --out or drop "
+                "--resume."
+            )
 
 
 def parse(argv, doc: str, scales: Mapping, name: str, root: str = "results"):

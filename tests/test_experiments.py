@@ -90,6 +90,58 @@ def test_resume_repeats_nothing_and_checks_the_config(quick_run, monkeypatch):
         module.cli(["--scale", "quick", "--out", str(out), "--resume", "--seed", "1"])
 
 
+def test_resume_keeps_runs_from_before_the_experiment_gained_settings(
+    quick_run, monkeypatch, tmp_path
+):
+    """A file written before the config had a setting (say, FISTA's runs) resumes: its runs
+    are kept and only the missing ones run. A kept run whose settings changed refuses."""
+    _, module, out, results, _ = quick_run
+    saved = json.loads((out / "results.json").read_text())
+    missing = saved["rows"].pop()
+    saved["config"].pop(sorted(saved["config"])[-1])  # a setting added since
+    older = tmp_path / "older"
+    older.mkdir()
+    (older / "reconstructions.npz").write_bytes((out / "reconstructions.npz").read_bytes())
+    (older / "results.json").write_text(json.dumps(saved))
+    asked = []
+
+    class Asked(Exception):
+        pass
+
+    def record(scene, train, test, *, method, options, **kwargs):
+        asked.append((method, len(train), json.loads(json.dumps(options))))
+        raise Asked  # stop before the run: its fit is not the point
+
+    monkeypatch.setattr(runner, "fit_and_evaluate", record)
+    argv = ["--scale", "quick", "--out", str(older), "--resume", "--no-progress"]
+    with pytest.raises(Asked):
+        module.cli(argv)
+    assert asked == [(missing["method"], missing["n_train"], missing["options"])]
+
+    saved["rows"][0]["options"] = saved["rows"][0]["options"] | {"epochs": 12345}
+    (older / "results.json").write_text(json.dumps(saved))
+    with pytest.raises(SystemExit, match="made with other settings"):
+        module.cli(argv)
+
+
+def test_resume_reads_the_free_text_outcomes_of_older_files():
+    """Rows from before typed outcomes said why a run ended in words (95641d3)."""
+    Stop, Outcome = rj.solvers.Stop, rj.solvers.Outcome
+    for legacy, expected in (
+        ("iterations", Stop(Outcome.BUDGET, 7)),
+        ("epochs", Stop(Outcome.BUDGET, 7)),
+        ("tolerance", Stop(Outcome.CONVERGED, 7)),
+        ("diverged at epoch 3", Stop(Outcome.DIVERGED, 3)),
+        ("zero signal", Stop(Outcome.ZERO_SIGNAL, 0)),
+    ):
+        row = runner._upgrade({"stopped": legacy, "iterations": 7, "diverged": None})
+        assert row == {"stopped": expected.to_json(), "iterations": 7}, legacy
+    typed = {"stopped": Stop(Outcome.CONVERGED, 2).to_json(), "iterations": 2}
+    assert runner._upgrade(typed) is typed
+    with pytest.raises(SystemExit, match="cannot read"):
+        runner._upgrade({"stopped": "gave up", "iterations": 1})
+
+
 def test_draw_shares_the_test_views_and_nests_the_training_views():
     pool = rj.Viewpoints.grid(10, 10)
     train_a, test_a = runner.draw(pool, 20, 10, seed=3)
