@@ -195,6 +195,7 @@ def main(
         out=out,
         report=lambda *args: report(*args, cfg, out, title),
         resume=resume,
+        per_run=("scenes", "ls", "rift", "fista", "models", "budget"),  # which runs, and how
         progress=progress,
     )
     print(

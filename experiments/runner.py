@@ -23,7 +23,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -432,6 +432,7 @@ def execute(
     trace: Mapping | None = None,
     notes: Mapping | None = None,
     resume: bool = False,
+    per_run: Collection[str] = ("budget",),
     progress: bool = True,
 ) -> dict:
     """Do every run not yet in ``out`` (with ``resume``), writing after each. Returns the
@@ -447,7 +448,12 @@ def execute(
     reconstructions at every save, so ``resume`` also refreshes them. ``trace`` (`Trace`'s
     options, or None) samples each run's quality against its wall time into its row's
     ``trace``. ``notes`` go into the results as they are (e.g. the machine's matmul rate);
-    a resumed run keeps the first run's and adds the new ones under ``resumed_notes``."""
+    a resumed run keeps the first run's and adds the new ones under ``resumed_notes``.
+
+    ``resume`` refuses another seed or a changed setting of ``cfg``, except those named in
+    ``per_run``: settings that only shape the runs (which runs, their `fit` options), which
+    may change as long as every run already done is still asked for, unchanged. A setting
+    the file lacks (added to the experiment since) must be at its default."""
     out = Path(out)
     config = json.loads(json.dumps(dataclasses.asdict(cfg)))  # tuples as JSON lists
     results = {"experiment": name, "scale": scale, "config": config, "seed": seed}
@@ -455,16 +461,20 @@ def execute(
     volumes: dict[str, np.ndarray] = {}
     if resume and (out / "results.json").exists():
         done = json.loads((out / "results.json").read_text())
-        if done["seed"] != seed or not _extends(config, done["config"]):
+        changed = f"seed {done['seed']}, now {seed}" if done["seed"] != seed else None
+        changed = changed or _changed_setting(cfg, done["config"], per_run)
+        if changed:
             raise SystemExit(
-                f"--resume: {out / 'results.json'} was measured with another config or seed; "
-                "choose another --out or drop --resume."
+                f"--resume: {out / 'results.json'} was measured with another config or seed "
+                f"({changed}); choose another --out or drop --resume."
             )
-        done["rows"] = [_upgrade(row) for row in done["rows"]]
+        done["rows"] = [_upgrade(row, seed) for row in done["rows"]]
         _check_kept(done["rows"], runs, seed, out / "results.json")
         if not (out / "reconstructions.npz").exists():
             raise SystemExit(f"--resume: {out / 'reconstructions.npz'} is missing.")
-        results = done | {"config": config}  # what the file now holds: kept runs and new
+        results = done | {"config": config}  # the file now holds runs of today's config
+        if done["config"] != config:  # ... and says what its first runs were made under
+            results.setdefault("resumed_from_configs", []).append(done["config"])
         with np.load(out / "reconstructions.npz") as saved:
             volumes = {key: saved[key] for key in saved.files}
         results.setdefault("resumed_with", []).append(versions())  # the first run's stay
@@ -549,34 +559,64 @@ def execute(
     return results
 
 
-def _extends(config, saved) -> bool:
-    """``config`` is ``saved`` with, at most, settings added that ``saved`` lacks: options the
-    experiment gained since the file was written (new runs, such as FISTA's, and their
-    budget). Any setting ``saved`` has must be unchanged."""
-    if isinstance(saved, dict):
-        return isinstance(config, dict) and all(
-            key in config and _extends(config[key], value) for key, value in saved.items()
-        )
-    return config == saved
+def _as_json(value):
+    return json.loads(json.dumps(value))  # tuples as lists, as results.json holds them
 
 
-def _upgrade(row: dict) -> dict:
-    """A row as this version writes it. Rows from before typed outcomes (95641d3) said why a
-    run ended in free text, and held a divergence's message under "diverged"."""
-    if not isinstance(row["stopped"], str):
+def _changed_setting(cfg, saved: dict, per_run: Collection[str]) -> str | None:
+    """What in ``cfg`` forbids resuming a file whose config was ``saved`` (None: nothing).
+
+    A setting in ``per_run`` may differ: `_check_kept` holds each kept row to the run asked
+    for now. Any other setting the file has must be unchanged; one it lacks must be at its
+    default, which is what the experiment did before the setting existed."""
+    config = _as_json(dataclasses.asdict(cfg))
+    dropped = sorted(saved.keys() - config.keys())
+    if dropped:
+        return f"{dropped[0]}: no longer a setting"
+    for field in dataclasses.fields(cfg):
+        key = field.name
+        if key in per_run:
+            continue
+        if key in saved:
+            if saved[key] != config[key]:
+                return f"{key}: {saved[key]!r}, now {config[key]!r}"
+            continue
+        if field.default is not dataclasses.MISSING:
+            default = field.default
+        elif field.default_factory is not dataclasses.MISSING:
+            default = field.default_factory()
+        else:
+            return f"{key}: new, and without a default"
+        if dataclasses.is_dataclass(default):
+            default = dataclasses.asdict(default)
+        if _as_json(default) != config[key]:
+            return f"{key}: new, and {config[key]!r} is not its default {default!r}"
+    return None
+
+
+def _upgrade(row: dict, seed: int) -> dict:
+    """A saved row as this version writes it. Rows from before typed outcomes (95641d3)
+    said why a run ended in free text, and held a divergence's message under "diverged";
+    rows from before rows held their seed were made with the file's."""
+    row = {"seed": seed} | row
+    legacy = row["stopped"]
+    if not isinstance(legacy, str):
         return row
-    legacy, row = row["stopped"], {k: v for k, v in row.items() if k != "diverged"}
-    Outcome = rj.solvers.Outcome
-    outcome = {"iterations": Outcome.BUDGET, "epochs": Outcome.BUDGET}.get(legacy)
-    at = row["iterations"]
-    if legacy == "tolerance":
-        outcome = Outcome.CONVERGED
+    outcome, at = None, row["iterations"]
+    if legacy in ("iterations", "epochs"):  # least squares' budget, RIFT's
+        outcome = rj.solvers.Outcome.BUDGET
+    elif legacy == "tolerance":
+        outcome = rj.solvers.Outcome.CONVERGED
     elif legacy == "zero signal":
-        outcome, at = Outcome.ZERO_SIGNAL, 0
+        outcome, at = rj.solvers.Outcome.ZERO_SIGNAL, 0
     elif legacy.startswith("diverged at epoch "):
-        outcome, at = Outcome.DIVERGED, int(legacy.rsplit(" ", 1)[1])
+        outcome, at = rj.solvers.Outcome.DIVERGED, int(legacy.rsplit(" ", 1)[1])
     if outcome is None:
-        raise SystemExit(f"--resume: a run ended with {legacy!r}, which this version cannot read.")
+        raise SystemExit(
+            f"--resume: run {row['scene']}/{row['run']} ended with {legacy!r}, which this "
+            "version cannot read; choose another --out or drop --resume."
+        )
+    row = {key: value for key, value in row.items() if key != "diverged"}
     return row | {"stopped": rj.solvers.Stop(outcome, at).to_json()}
 
 
@@ -585,20 +625,25 @@ def _check_kept(rows: list[dict], runs: list[Run], seed: int, path: Path) -> Non
     would get now; otherwise resuming would mix two protocols in one table."""
     asked = {(run.scene, run.label): run for run in runs}
     for row in rows:
+        name = f"{path}'s run {row['scene']}/{row['run']}"
         run = asked.get((row["scene"], row["run"]))
-        now = run and {
+        if run is None:
+            raise SystemExit(
+                f"--resume: {name} is not one this config asks for; choose another --out or "
+                "drop --resume."
+            )
+        now = {
             "method": run.method,
             "n_train": run.n_train,
-            "options": json.loads(json.dumps(dict(run.options))),  # as the file holds them
+            "options": _as_json(dict(run.options)),
             "seed": seed if run.seed is None else run.seed,
         }
-        saved = {"seed": seed} | row  # a row written before rows kept their seed: the file's
-        if not now or any(saved.get(key) != value for key, value in now.items()):
-            raise SystemExit(
-                f"--resume: {path}'s run {row['scene']}/{row['run']} is not one this config "
-                "asks for, or was made with other settings; choose another --out or drop "
-                "--resume."
-            )
+        for key, value in now.items():
+            if row[key] != value:
+                raise SystemExit(
+                    f"--resume: {name} was made with other settings ({key}: {row[key]!r}, "
+                    f"now {value!r}); choose another --out or drop --resume."
+                )
 
 
 def parse(argv, doc: str, scales: Mapping, name: str, root: str = "results"):

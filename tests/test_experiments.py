@@ -90,43 +90,111 @@ def test_resume_repeats_nothing_and_checks_the_config(quick_run, monkeypatch):
         module.cli(["--scale", "quick", "--out", str(out), "--resume", "--seed", "1"])
 
 
+def _legacy(row: dict) -> dict:
+    """``row`` as files from before typed outcomes (95641d3) and per-row seeds held it."""
+    stop = rj.solvers.Stop.from_json(row["stopped"])
+    words = {
+        "budget": "epochs" if row["method"].startswith("rift") else "iterations",
+        "converged": "tolerance",
+        "diverged": f"diverged at epoch {stop.at}",
+        "zero signal": "zero signal",
+    }[stop.outcome.value]
+    kept = {k: v for k, v in row.items() if k not in ("seed", "remedies", "collapse")}
+    return kept | {"stopped": words, "diverged": None}
+
+
+def _had_old_form(row: dict, seed: int) -> bool:
+    stop = rj.solvers.Stop.from_json(row["stopped"])
+    ended = stop.at == row["iterations"] or stop.outcome.value in ("diverged", "zero signal")
+    return row["seed"] == seed and ended
+
+
 def test_resume_keeps_runs_from_before_the_experiment_gained_settings(
     quick_run, monkeypatch, tmp_path
 ):
-    """A file written before the config had a setting (say, FISTA's runs) resumes: its runs
-    are kept and only the missing ones run. A kept run whose settings changed refuses."""
+    """A file from an older version resumes: settings it lacks, at their defaults, are what
+    it did; its rows in the old form are read; only the missing run is done. A kept run
+    this config no longer asks for, or asks for otherwise, refuses."""
     _, module, out, results, _ = quick_run
     saved = json.loads((out / "results.json").read_text())
-    missing = saved["rows"].pop()
-    saved["config"].pop(sorted(saved["config"])[-1])  # a setting added since
+    cfg = module.SCALES["quick"]
+    at_default = [f.name for f in dataclasses.fields(cfg) if getattr(cfg, f.name) == f.default]
+    for key in at_default:  # as if added to the experiment since
+        del saved["config"][key]
+    # rows made with the file's seed, as older versions wrote them: read back as they are
+    # now, but for what older rows did not hold. (Older versions ended a run at its last
+    # history entry; a row where they differ, after RIFT's collapse retry, has no old form.)
+    rows = [_legacy(r) if _had_old_form(r, saved["seed"]) else r for r in saved["rows"]]
+    assert any(old is not row for old, row in zip(rows, saved["rows"], strict=True))
+    for old, row in zip(rows, saved["rows"], strict=True):
+        expected = {k: v for k, v in row.items() if old is row or k not in ("remedies", "collapse")}
+        assert runner._upgrade(old, saved["seed"]) == expected
+    missing = saved["rows"][-1]
+    saved["rows"] = rows[:-1]
     older = tmp_path / "older"
     older.mkdir()
     (older / "reconstructions.npz").write_bytes((out / "reconstructions.npz").read_bytes())
-    (older / "results.json").write_text(json.dumps(saved))
-    asked = []
+
+    def resume_with(changed: dict):
+        (older / "results.json").write_text(json.dumps(changed))
+        module.cli(["--scale", "quick", "--out", str(older), "--resume", "--no-progress"])
 
     class Asked(Exception):
         pass
+
+    asked = []
 
     def record(scene, train, test, *, method, options, **kwargs):
         asked.append((method, len(train), json.loads(json.dumps(options))))
         raise Asked  # stop before the run: its fit is not the point
 
     monkeypatch.setattr(runner, "fit_and_evaluate", record)
-    argv = ["--scale", "quick", "--out", str(older), "--resume", "--no-progress"]
     with pytest.raises(Asked):
-        module.cli(argv)
-    assert asked == [(missing["method"], missing["n_train"], missing["options"])]
+        resume_with(saved)
+    assert asked[0] == (missing["method"], missing["n_train"], missing["options"])
 
-    saved["rows"][0]["options"] = saved["rows"][0]["options"] | {"epochs": 12345}
-    (older / "results.json").write_text(json.dumps(saved))
+    first = saved["rows"][0]
     with pytest.raises(SystemExit, match="made with other settings"):
-        module.cli(argv)
+        resume_with(saved | {"rows": [first | {"n_train": first["n_train"] + 1}]})
+    with pytest.raises(SystemExit, match="not one this config asks for"):
+        resume_with(saved | {"rows": [first | {"run": "LS-99999"}]})
+    with pytest.raises(SystemExit, match="no longer a setting"):
+        resume_with(saved | {"config": saved["config"] | {"retired": 1}})
+
+
+def test_resume_refuses_a_changed_setting_unless_it_only_shapes_the_runs():
+    @dataclasses.dataclass(frozen=True)
+    class Inner:
+        a: int = 1
+
+    @dataclasses.dataclass(frozen=True)
+    class Config:
+        extent: float
+        runs: tuple[int, ...] = ()
+        inner: Inner = Inner()
+        flag: bool = False
+        needed: int = dataclasses.field(default_factory=lambda: 3)
+
+    cfg = Config(2.0, runs=(10, 20), flag=False)
+    saved = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    changed = runner._changed_setting
+    assert changed(cfg, saved, ()) is None
+    assert changed(cfg, saved | {"runs": [10]}, ("runs",)) is None  # a run added
+    assert "runs" in changed(cfg, saved | {"runs": [10]}, ())
+    assert "extent: 1.0, now 2.0" in changed(cfg, saved | {"extent": 1.0}, ("runs",))
+    assert "inner" in changed(cfg, saved | {"inner": {"a": 2}}, ())
+    for key in ("flag", "inner", "needed"):  # added since, at their defaults: as before
+        assert changed(cfg, {k: v for k, v in saved.items() if k != key}, ()) is None
+    older = {k: v for k, v in saved.items() if k != "flag"}
+    assert "flag: new" in changed(dataclasses.replace(cfg, flag=True), older, ())
+    assert "extent: new, and without a default" in changed(cfg, {}, ())
+    assert "gone: no longer a setting" in changed(cfg, saved | {"gone": 0}, ())
 
 
 def test_resume_reads_the_free_text_outcomes_of_older_files():
     """Rows from before typed outcomes said why a run ended in words (95641d3)."""
     Stop, Outcome = rj.solvers.Stop, rj.solvers.Outcome
+    base = {"scene": "s", "run": "LS-1", "iterations": 7, "diverged": None}
     for legacy, expected in (
         ("iterations", Stop(Outcome.BUDGET, 7)),
         ("epochs", Stop(Outcome.BUDGET, 7)),
@@ -134,12 +202,14 @@ def test_resume_reads_the_free_text_outcomes_of_older_files():
         ("diverged at epoch 3", Stop(Outcome.DIVERGED, 3)),
         ("zero signal", Stop(Outcome.ZERO_SIGNAL, 0)),
     ):
-        row = runner._upgrade({"stopped": legacy, "iterations": 7, "diverged": None})
-        assert row == {"stopped": expected.to_json(), "iterations": 7}, legacy
-    typed = {"stopped": Stop(Outcome.CONVERGED, 2).to_json(), "iterations": 2}
-    assert runner._upgrade(typed) is typed
+        row = runner._upgrade(base | {"stopped": legacy}, seed=5)
+        assert row == {"scene": "s", "run": "LS-1", "iterations": 7, "seed": 5} | {
+            "stopped": expected.to_json()
+        }, legacy
+    typed = base | {"stopped": Stop(Outcome.CONVERGED, 2).to_json(), "seed": 1}
+    assert runner._upgrade(typed, seed=5) == typed  # its own seed kept
     with pytest.raises(SystemExit, match="cannot read"):
-        runner._upgrade({"stopped": "gave up", "iterations": 1})
+        runner._upgrade(base | {"stopped": "gave up"}, seed=0)
 
 
 def test_draw_shares_the_test_views_and_nests_the_training_views():
