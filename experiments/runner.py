@@ -721,9 +721,17 @@ METRIC_COLUMNS = [
 
 def environment_line(results: dict) -> str:
     v = results["versions"]
-    return (
+    line = (
         f"Seed {results['seed']}; {len(results['rows'])} runs in "
         f"{results['wall_seconds'] / 60:.1f} min (fit + evaluation) on {v['cpu_count']} CPU "
         f"cores ({', '.join(v['devices'])}); rift_jax {v['rift_jax']}, jax {v['jax']}, "
         f"Python {v['python']}."
     )
+    # a resumed file's runs may come from several versions of the code: say which
+    runs = [v, *results.get("resumed_with", [])]
+    commits = list(dict.fromkeys(c[:7] for c in (r.get("git_commit") for r in runs) if c))
+    if len(commits) > 1:
+        line += f" Code at commit {commits[0]}, resumed at {', '.join(commits[1:])}."
+    elif commits:
+        line += f" Code at commit {commits[0]}."
+    return line

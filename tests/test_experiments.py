@@ -191,6 +191,17 @@ def test_resume_refuses_a_changed_setting_unless_it_only_shapes_the_runs():
     assert "gone: no longer a setting" in changed(cfg, saved | {"gone": 0}, ())
 
 
+def test_the_environment_line_names_every_commit_a_resumed_file_ran():
+    versions = {"cpu_count": 2, "devices": ["cpu:0"], "rift_jax": "0", "jax": "0", "python": "3"}
+    results = {"seed": 0, "rows": [{}], "wall_seconds": 60.0, "versions": versions}
+    assert "commit" not in runner.environment_line(results)  # not from a git checkout
+    results["versions"] = versions | {"git_commit": "a" * 40}
+    assert runner.environment_line(results).endswith(" Code at commit aaaaaaa.")
+    results["resumed_with"] = [{"git_commit": "a" * 40}, {"git_commit": "b" * 40}]
+    line = runner.environment_line(results)
+    assert line.endswith(" Code at commit aaaaaaa, resumed at bbbbbbb.")
+
+
 def test_resume_reads_the_free_text_outcomes_of_older_files():
     """Rows from before typed outcomes said why a run ended in words (95641d3)."""
     Stop, Outcome = rj.solvers.Stop, rj.solvers.Outcome
