@@ -455,7 +455,7 @@ def execute(
     may change as long as every run already done is still asked for, unchanged. A setting
     the file lacks (added to the experiment since) must be at its default."""
     out = Path(out)
-    config = json.loads(json.dumps(dataclasses.asdict(cfg)))  # tuples as JSON lists
+    config = _as_json(dataclasses.asdict(cfg))
     results = {"experiment": name, "scale": scale, "config": config, "seed": seed}
     results |= {"rows": [], "histories": {}, "wall_seconds": 0.0}
     volumes: dict[str, np.ndarray] = {}
