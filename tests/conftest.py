@@ -42,6 +42,16 @@ def pytest_sessionfinish(session):
         shutil.rmtree(_CACHE, ignore_errors=True)
 
 
+def pytest_terminal_summary(terminalreporter):
+    """The machine's own speed beside the suite's time, measured once the workers are done.
+    The same 2-core machine is not equally fast every day: the suite took 742-777 s in
+    sessions whose benchmarks measured 10-13 G/s, and 1,391 s on a day of 6.2-7.3 G/s."""
+    from benchmarks._timing import complex_matmul_rate
+
+    rate = complex_matmul_rate()
+    terminalreporter.write_line(f"this machine's complex64 matmul (1024³): {rate:.1f} G/s")
+
+
 # The files that take longest, by their summed test time in `tests/compile_profile.py`
 # (e79f5e7: 271, 204, 147, 139, 117, 102 and 78 s of the two workers' ~1,500). xdist hands
 # out whole files (`--dist loadfile`) in collection order (`--no-loadscope-reorder`; its
