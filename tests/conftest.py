@@ -44,8 +44,9 @@ def pytest_sessionfinish(session):
 
 def pytest_terminal_summary(terminalreporter):
     """The machine's own speed beside the suite's time, measured once the workers are done.
-    The same 2-core machine is not equally fast every day: the suite took 742-777 s in
-    sessions whose benchmarks measured 10-13 G/s, and 1,391 s on a day of 6.2-7.3 G/s."""
+    The same 2-core machine is not equally fast every day: the suite took 743-777 s in
+    earlier sessions (whose benchmarks record 10-18 G/s), and 1,391 s on a day of 6.2-7.3
+    G/s."""
     from benchmarks._timing import complex_matmul_rate
 
     rate = complex_matmul_rate()
