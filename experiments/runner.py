@@ -165,9 +165,12 @@ def rift_options(n_train: int, steps: int, batch_views: int = 10) -> dict:
     """Options giving a RIFT run about ``steps`` optimizer steps whatever its number of
     views, so RIFT-100 and RIFT-1000 get the same compute; the learning rate halves three
     times (after a quarter, half and three quarters of the steps), as in the default
-    recipe (every 25 of 100 epochs)."""
+    recipe (every 25 of 100 epochs). Every step is taken (``patience=None``): a budget
+    that stops early says so itself."""
     epochs = max(1, round(steps * batch_views / n_train))
-    return {"epochs": epochs, "halve_every": epochs / 4, "batch_views": batch_views}
+    return {"epochs": epochs, "halve_every": epochs / 4, "batch_views": batch_views} | {
+        "patience": None
+    }
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,9 +207,7 @@ class Budget:
         options = rift_options(n_train, self.rift_steps) | self._support()
         if self.rift_prune is not None:
             options |= {"prune": self.rift_prune, "recheck_every": self.recheck_every}
-        if self.rift_patience is not None:
-            options |= {"patience": self.rift_patience}
-        return options
+        return options | {"patience": self.rift_patience}
 
     def _support(self) -> dict:
         return {} if self.support is None else {"support": self.support}
@@ -219,7 +220,7 @@ class Budget:
                 f"Kaczmarz at most {self.sweeps} sweeps, stopped when the residual stalls "
                 f"(tol {self.ls_tol:g})"
             )
-        rift = f"{model} default recipe, {self.rift_steps} steps of 10 views per run"
+        rift = f"{model} default recipe, {self.rift_steps} steps of 10 views per run, every one"
         if self.rift_patience:
             rift = (
                 f"{model} default recipe, at most {self.rift_steps} steps of 10 views per "
@@ -597,8 +598,12 @@ def _changed_setting(cfg, saved: dict, per_run: Collection[str]) -> str | None:
 def _upgrade(row: dict, seed: int) -> dict:
     """A saved row as this version writes it. Rows from before typed outcomes (95641d3)
     said why a run ended in free text, and held a divergence's message under "diverged";
-    rows from before rows held their seed were made with the file's."""
+    rows from before rows held their seed were made with the file's. A RIFT row whose
+    options name no `patience` ran every epoch: None was the default before 10."""
     row = {"seed": seed} | row
+    options = row.get("options")
+    if str(row.get("method", "")).startswith("rift") and isinstance(options, dict):
+        row["options"] = {"patience": None} | options
     legacy = row["stopped"]
     if not isinstance(legacy, str):
         return row

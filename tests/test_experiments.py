@@ -91,8 +91,11 @@ def test_resume_repeats_nothing_and_checks_the_config(quick_run, monkeypatch):
 
 
 def _legacy(row: dict) -> dict:
-    """``row`` as files from before typed outcomes (95641d3) and per-row seeds held it."""
+    """``row`` as files from before typed outcomes (95641d3) and per-row seeds held it (and
+    before RIFT's `patience` defaulted to 10: a run of every epoch named none)."""
     stop = rj.solvers.Stop.from_json(row["stopped"])
+    if row["method"].startswith("rift") and row["options"]["patience"] is None:
+        row = row | {"options": {k: v for k, v in row["options"].items() if k != "patience"}}
     words = {
         "budget": "epochs" if row["method"].startswith("rift") else "iterations",
         "converged": "tolerance",

@@ -65,10 +65,11 @@ class Recipe:
     - `gain`: learn the global complex gain, started where the initial field's signals have
       the data's energy (False: fixed at 1, as the paper).
     - `patience`: stop early when the epoch's mean training loss has not improved on the best
-      so far by a relative `min_improvement` for this many epochs (None: run every epoch).
-      The run then ends with ``Outcome.CONVERGED``, as the least-squares solvers do, and
-      keeps the best parameters. At the paper's scale the loss is flat after ~20 of 100
-      epochs, so a `patience` of 10 can save most of a run.
+      so far by a relative `min_improvement` for this many epochs (default 10, so that
+      `epochs` is a budget: "until converged, at most N"; None: run every epoch, as the
+      paper). The run then ends with ``Outcome.CONVERGED``, as the least-squares solvers
+      do, and keeps the best parameters. At the paper's scale the loss is flat after ~20 of
+      100 epochs, so a `patience` of 10 can save most of a run.
     - `min_improvement`: see `patience`.
     - `prune`: train only an *active set* of the operator's points: those where |ρ| is at
       least ``prune`` times its largest value, and their neighbours (within √3 point
@@ -96,7 +97,7 @@ class Recipe:
     clip_norm: float | None = 1.0
     gain: bool = True
     adam_eps: float = 1e-8
-    patience: int | None = None
+    patience: int | None = 10
     min_improvement: float = 1e-3
     prune: float | None = None
     recheck_every: int = 10
@@ -153,6 +154,7 @@ RECIPES = {
         batch_views=None,
         clip_norm=None,
         gain=False,
+        patience=None,  # the paper trains every epoch
     ),
 }
 
