@@ -220,7 +220,7 @@ class Budget:
                 f"Kaczmarz at most {self.sweeps} sweeps, stopped when the residual stalls "
                 f"(tol {self.ls_tol:g})"
             )
-        rift = f"{model} default recipe, {self.rift_steps} steps of 10 views per run, every one"
+        rift = f"{model} default recipe, {self.rift_steps} steps of 10 views per run"
         if self.rift_patience:
             rift = (
                 f"{model} default recipe, at most {self.rift_steps} steps of 10 views per "
@@ -603,7 +603,7 @@ def _upgrade(row: dict, seed: int) -> dict:
     row = {"seed": seed} | row
     options = row.get("options")
     if str(row.get("method", "")).startswith("rift") and isinstance(options, dict):
-        row["options"] = {"patience": None} | options
+        row["options"] = options if "patience" in options else options | {"patience": None}
     legacy = row["stopped"]
     if not isinstance(legacy, str):
         return row

@@ -208,7 +208,8 @@ def fit(
     - `**options`: passed to the solver (``iterations``, ``tol``, ``relaxation``, ...; for
       RIFT ``recipe``, ``epochs``, ``loss``, ``prune``, ...; see `rift_jax.solvers`). RIFT
       also takes ``train_granularity``: coarse to fine, it trains the field for its last
-      ``fine_epochs`` (default half the epochs) on the points of the grid of that
+      ``fine_epochs`` (default half the epochs; after the coarse stage, which
+      `patience` may end sooner) on the points of the grid of that
       granularity (e.g. the data's own) that fall in the support, while `scene` is still
       its rendering on the inverse grid (for the paper's metrics) and `predict` uses what
       was trained (`FitResult.trained`).

@@ -165,6 +165,23 @@ def test_resume_keeps_runs_from_before_the_experiment_gained_settings(
         resume_with(saved | {"config": saved["config"] | {"retired": 1}})
 
 
+def test_the_experiments_name_rifts_patience():
+    """`fit` stops RIFT once converged by default (patience 10); the experiments say what
+    they do (every step, or the paper scale's 10), so their committed results stay what the
+    code makes, and rows from before name none: they ran every epoch."""
+    assert runner.rift_options(100, 200)["patience"] is None
+    assert runner.Budget(1, 4).rift(100)["patience"] is None
+    assert runner.Budget(1, 4, **runner.PAPER_STOPPING).rift(100)["patience"] == 10
+    stop = rj.solvers.Stop(rj.solvers.Outcome.BUDGET, 3).to_json()
+    row = {"scene": "s", "run": "RIFT(N)-1", "method": "rift-n", "iterations": 3}
+    row |= {"stopped": stop, "seed": 0, "options": {"epochs": 3, "patience": 10}}
+    assert runner._upgrade(row, seed=0) == row
+    older = row | {"options": {"epochs": 3}}
+    assert runner._upgrade(older, seed=0)["options"] == {"epochs": 3, "patience": None}
+    lsmr = row | {"method": "lsmr", "options": {"iterations": 3}}
+    assert runner._upgrade(lsmr, seed=0) == lsmr
+
+
 def test_resume_refuses_a_changed_setting_unless_it_only_shapes_the_runs():
     @dataclasses.dataclass(frozen=True)
     class Inner:

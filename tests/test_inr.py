@@ -467,14 +467,14 @@ def test_holdout_views_are_never_trained_on_and_choose_the_best(small_cube):
     residual is recorded per epoch and picks the best epoch and the stop."""
     radar, scene, train, _ = small_cube
     common = dict(radar=radar, method="rift-n", granularity=0.5, epochs=12, progress=False)
-    held = rj.fit(scene, train, holdout=4, **common)
+    held = rj.fit(scene, train, holdout=4, patience=None, **common)  # every epoch, both
     views = held.stats["holdout_views"]
     assert views == [0, 10, 19, 29]
     others = train[np.setdiff1d(np.arange(len(train)), views)]
     data = rj.synthesize(scene, train, radar)  # the same normalisation as `held`'s
     alone = rj.fit(
         rj.RadarData(data.signal[np.setdiff1d(np.arange(30), views)], data.scale, others, radar),
-        others, extent=2.0, **common,
+        others, extent=2.0, patience=None, **common,
     )  # fmt: skip
     np.testing.assert_array_equal(held.history.loss, alone.history.loss)
     residual = held.stats["holdout_residual"]
