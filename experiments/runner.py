@@ -168,8 +168,11 @@ def rift_options(n_train: int, steps: int, batch_views: int = 10) -> dict:
     recipe (every 25 of 100 epochs). Every step is taken (``patience=None``): a budget
     that stops early says so itself."""
     epochs = max(1, round(steps * batch_views / n_train))
-    return {"epochs": epochs, "halve_every": epochs / 4, "batch_views": batch_views} | {
-        "patience": None
+    return {
+        "epochs": epochs,
+        "halve_every": epochs / 4,
+        "batch_views": batch_views,
+        "patience": None,
     }
 
 
