@@ -6,7 +6,8 @@ the profile to read before adding a slow test or cutting one.
     .venv/bin/python tests/compile_profile.py [.compile_profile] [--top 30]
 
 Each pytest process (each xdist worker) writes ``<folder>/<worker>.json``; the script merges
-them and prints the slowest tests with their compile time and most expensive programs. Tests
+them and prints the slowest tests with their compile time and most expensive programs, then
+the programs that cost most over the whole suite, with how often they compiled. Tests
 that start subprocesses show their wall time only. Cheap: listeners on JAX's own monitoring
 events (`jax.monitoring`), which JAX records whether or not anyone listens.
 """
@@ -79,6 +80,11 @@ def report(folder: Path, top: int) -> str:
     for file in sorted(folder.glob("*.json")):
         tests |= json.loads(file.read_text())
     rows, totals = [], collections.Counter()
+    suite_seconds, suite_compiled, suite_tests = (
+        collections.Counter(),
+        collections.Counter(),
+        collections.Counter(),
+    )
     for test, by_key in tests.items():
         stage, programs, compiled = (
             collections.Counter(),
@@ -93,6 +99,9 @@ def report(folder: Path, top: int) -> str:
                 programs[name] += seconds
                 compiled[name] += count if kind == "compile" else 0
         totals.update(stage)
+        suite_seconds.update(programs)
+        suite_compiled.update(compiled)
+        suite_tests.update(name for name in compiled if compiled[name])
         rows.append((stage["wall"], stage, programs, compiled, test))
     rows.sort(key=lambda row: -row[0])
     jax_time = totals["trace"] + totals["lower"] + totals["compile"]
@@ -110,6 +119,14 @@ def report(folder: Path, top: int) -> str:
         )
         spent = stage["trace"] + stage["lower"] + stage["compile"]
         lines.append(f"| {wall:.1f} | {spent:.1f} | {test} | {costly} |")
+    # the same program compiled for many shapes or settings is what sharing them would save
+    lines += [
+        "",
+        "| trace + lower + compile s | program | compilations | tests compiling it |",
+        "|---|---|---|---|",
+    ]
+    for name, seconds in suite_seconds.most_common(top):
+        lines.append(f"| {seconds:.1f} | {name} | {suite_compiled[name]} | {suite_tests[name]} |")
     return "\n".join(lines)
 
 
