@@ -183,11 +183,13 @@ def fit(
       the grid's shape, or a `Scene` on the same grid (its non-zero voxels): only those.
       ``"auto"``: estimated from the signal by `rift_jax.estimate_support` with its
       defaults (a thresholded backprojection sampled finer than the grid; call it yourself
-      to tune it), counted in ``seconds``. The operator is `grt_operator` on the support's
-      points only, so every method's cost falls with it; ρ = 0 elsewhere. Afterwards
+      to tune it), counted in ``seconds`` (its share: ``stats["support_seconds"]``). The
+      operator is `grt_operator` on the support's points only, so every method's cost
+      falls with it; ρ = 0 elsewhere. Afterwards
       ``stats["support_leak"]`` is the largest backprojection |Aᴴr| of the data residual r
       *outside* the support, relative to the data's peak backprojection on it (one adjoint
-      pass over the whole grid, from at most 100 of the viewpoints, evenly spread): near 0
+      pass over the whole grid, from at most 100 of the viewpoints, evenly spread; its
+      seconds, also counted in ``seconds``, are ``stats["support_leak_seconds"]``): near 0
       when the support holds the scene and the fit explains the data, high when it dropped
       a scatterer, and also high when the data hold what no grid point explains (noise,
       the paper's two-grid protocol). A starting `x0` is given on the whole grid.
@@ -243,8 +245,11 @@ def fit(
     start = time.perf_counter()  # the support check counts in the reconstruction's time
     points = grid.points()
     operator = grt_operator(radar, viewpoints, points)
+    support_stats = {}  # where a support's own cost goes: the estimate, the leak check
     if isinstance(support, str) and support == "auto":
+        estimating = time.perf_counter()
         support = estimate_support(signal, viewpoints, grid, radar=radar)
+        support_stats["support_seconds"] = time.perf_counter() - estimating
     mask = None if support is None else as_mask(support, grid)
     if mask is not None:
         full, operator = operator, grt_operator(radar, viewpoints, points[mask.ravel()])
@@ -328,8 +333,10 @@ def fit(
             rho = np.where(voxels_holding(grid, candidates[where]).ravel(), rho, 0)
         if mask is not None:
             kept = jnp.asarray(rho[mask.ravel()] / scale)  # the solver's units
+            checked = time.perf_counter()
             leak = _support_leak(full, operator, signal, kept, mask)
-            stats |= {"support_points": int(mask.sum()), "support_leak": leak}
+            stats |= {"support_points": int(mask.sum()), "support_leak": leak, **support_stats}
+            stats["support_leak_seconds"] = time.perf_counter() - checked
         scene = Scene(jnp.asarray(rho.reshape(grid.shape), jnp.complex64), extent, granularity)
         seconds = time.perf_counter() - start - watched[0]
         return FitResult(

@@ -197,6 +197,13 @@ def test_fit_auto_is_estimate_support(small_cube):
     np.testing.assert_array_equal(auto.support, mask)
     np.testing.assert_array_equal(auto.scene.reflectivity, given.scene.reflectivity)
     assert auto.n_points == mask.sum()
+    # the support's own cost, within the fit's seconds: the estimate (only for "auto") and
+    # the leak check (for any support)
+    assert "support_seconds" not in given.stats
+    for result in (auto, given):
+        assert 0 < result.stats["support_leak_seconds"] < result.seconds
+    assert 0 < auto.stats["support_seconds"]
+    assert auto.stats["support_seconds"] + auto.stats["support_leak_seconds"] < auto.seconds
 
 
 def test_bad_estimate_support_input(small_cube):
