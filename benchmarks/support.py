@@ -223,16 +223,19 @@ def main(argv=None) -> dict:
         out[name] = {"seconds": result.seconds, "points": result.n_points, **metrics}
         out[name]["active_points"] = result.stats.get("active_points")
         # the support's own share of the seconds: its estimate and the leak check
-        estimate = result.stats.get("support_seconds")
-        leak = result.stats.get("support_leak_seconds")
-        out[name] |= {"support_seconds": estimate, "support_leak_seconds": leak}
+        support_seconds = result.stats.get("support_seconds")
+        leak_seconds = result.stats.get("support_leak_seconds")
+        out[name] |= {"support_seconds": support_seconds, "support_leak_seconds": leak_seconds}
         print(
             f"{name:22s} {result.seconds:7.1f} s  m-SSIM {metrics['m_ssim']:.3f}  "
             f"m-COS {metrics['m_cos']:.3f}  t-IoU {metrics['t_iou']:.3f}  "
             f"p-RMSE {metrics['p_rmse']:.3f}  residual {metrics['residual']:.3f}"
         )
-        if estimate is not None:
-            print(f"{'':22s} of which the estimate {estimate:.1f} s, the leak check {leak:.1f} s")
+        if support_seconds is not None:
+            print(
+                f"{'':22s} of which the estimate {support_seconds:.1f} s, the leak check "
+                f"{leak_seconds:.1f} s"
+            )
         if "partial" in name:
             per_epoch = float(np.median(np.diff(result.history.seconds)))
             estimate = result.history.seconds[0] + per_epoch * (args.epochs - 1)

@@ -335,8 +335,13 @@ def fit(
             kept = jnp.asarray(rho[mask.ravel()] / scale)  # the solver's units
             checked = time.perf_counter()
             leak = _support_leak(full, operator, signal, kept, mask)
-            stats |= {"support_points": int(mask.sum()), "support_leak": leak, **support_stats}
-            stats["support_leak_seconds"] = time.perf_counter() - checked
+            leak_seconds = time.perf_counter() - checked
+            stats |= {
+                "support_points": int(mask.sum()),
+                "support_leak": leak,
+                "support_leak_seconds": leak_seconds,
+                **support_stats,
+            }
         scene = Scene(jnp.asarray(rho.reshape(grid.shape), jnp.complex64), extent, granularity)
         seconds = time.perf_counter() - start - watched[0]
         return FitResult(
