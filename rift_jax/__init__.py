@@ -40,6 +40,7 @@ from . import metrics as metrics  # noqa: E402
 from . import scenes as scenes  # noqa: E402
 from . import solvers as solvers  # noqa: E402
 from ._fit import FitResult as FitResult  # noqa: E402
+from ._fit import FitWarning as FitWarning  # noqa: E402
 from ._fit import GridWarning as GridWarning  # noqa: E402
 from ._fit import fit as fit  # noqa: E402
 from ._geometry import C0 as C0  # noqa: E402

@@ -39,6 +39,11 @@ METHODS = {
     "rift-s": functools.partial(_solvers.rift, model="rift-s"),
 }
 
+DEFAULT_METHOD = "fista"
+"""`fit`'s method when none is named: the one that did best on the stress grid with every
+method at its defaults (docs/solvers.md, "Which method"). RIFT(N) at its defaults failed
+there (m-SSIM ≈ 0.01 from 10 or 30 views), so it is not the default."""
+
 
 @dataclasses.dataclass(frozen=True)
 class FitResult:
@@ -145,11 +150,11 @@ def fit(
     viewpoints: Viewpoints,
     *,
     radar: Radar | None = None,
-    method: str = "kaczmarz",
+    method: str = DEFAULT_METHOD,
     granularity: float | None = None,
     extent: float | None = None,
     snr_db: float | None = None,
-    support: None | str | np.ndarray | Scene = None,
+    support: None | str | np.ndarray | Scene = "auto",
     seed: int = 0,
     progress: bool = True,
     monitor: Callable[[int, float, Callable[[], Scene]], bool | None] | None = None,
@@ -173,17 +178,20 @@ def fit(
     - `scene_or_signal`: a `Scene`, `PointScatterers`, a `RadarData`, or a complex array.
     - `viewpoints`: a `Viewpoints`, one per signal.
     - `radar`: a `Radar` (default the paper's; a `RadarData` brings its own).
-    - `method`: ``"kaczmarz"`` (the paper's baseline), ``"lsmr"`` (lineax), ``"gauss-newton"``
-      (optimistix; ``damped=True`` for Levenberg-Marquardt), ``"fista"`` (jaxopt, sparse),
-      or RIFT: ``"rift-n"`` / ``"rift-s"`` (an INR trained with optax; see
-      `rift_jax.solvers.rift` and `Recipe`).
+    - `method`: ``"fista"`` (the default: jaxopt, least squares with a sparse prior, the
+      method that did best on the stress grid at every method's defaults; docs/solvers.md,
+      "Which method"), ``"kaczmarz"`` (the paper's baseline), ``"lsmr"`` (lineax),
+      ``"gauss-newton"`` (optimistix; ``damped=True`` for Levenberg-Marquardt), or RIFT:
+      ``"rift-n"`` / ``"rift-s"`` (an INR trained with optax; see `rift_jax.solvers.rift`
+      and `Recipe`).
     - `granularity`, `extent`: the inverse grid (metres).
     - `snr_db`: noise added to synthesised signals (Scene input only).
-    - `support`: which grid points may be non-zero. None: all of them. A boolean mask of
-      the grid's shape, or a `Scene` on the same grid (its non-zero voxels): only those.
-      ``"auto"``: estimated from the signal by `rift_jax.estimate_support` with its
+    - `support`: which grid points may be non-zero. ``"auto"`` (the default, for every
+      method): estimated from the signal by `rift_jax.estimate_support` with its
       defaults (a thresholded backprojection sampled finer than the grid; call it yourself
-      to tune it), counted in ``seconds`` (its share: ``stats["support_seconds"]``). The
+      to tune it), counted in ``seconds`` (its share: ``stats["support_seconds"]``). None:
+      every grid point (the paper's setting). A boolean mask of the grid's shape, or a
+      `Scene` on the same grid (its non-zero voxels): only those. The
       operator is `grt_operator` on the support's points only, so every method's cost
       falls with it; ρ = 0 elsewhere. Afterwards
       ``stats["support_leak"]`` is the largest backprojection |Aᴴr| of the data residual r
@@ -193,6 +201,13 @@ def fit(
       when the support holds the scene and the fit explains the data, high when it dropped
       a scatterer, and also high when the data hold what no grid point explains (noise,
       the paper's two-grid protocol). A starting `x0` is given on the whole grid.
+
+      Every fit is then checked on the same viewpoints (``stats["data_residual"]``, the
+      relative residual ‖y − Aρ‖/‖y‖ of the returned ρ, and ``stats["coherence"]``,
+      cos(|ρ|, |Aᴴy|) over the reconstruction's points), and a `FitWarning` names the
+      likely cause and the option that helps when the fit explains the data no better
+      than the zero image (residual ≥ 1), or when a RIFT field is unlike the data's
+      backprojection (coherence < 0.8: the smooth-blob collapse).
     - `seed`: seeds noise, Kaczmarz's block order, FISTA's power iteration, and RIFT's
       initialisation and viewpoint order.
     - `progress`: show a progress bar on runs longer than two seconds.
@@ -246,13 +261,16 @@ def fit(
     points = grid.points()
     operator = grt_operator(radar, viewpoints, points)
     support_stats = {}  # where a support's own cost goes: the estimate, the leak check
+    if isinstance(support, str) and support == "auto" and not np.any(np.asarray(signal)):
+        support = None  # a zero signal shows no support; every solver returns the zero scene
     if isinstance(support, str) and support == "auto":
         estimating = time.perf_counter()
         support = estimate_support(signal, viewpoints, grid, radar=radar)
         support_stats["support_seconds"] = time.perf_counter() - estimating
     mask = None if support is None else as_mask(support, grid)
+    full = operator  # the whole grid's, for the checks after the fit
     if mask is not None:
-        full, operator = operator, grt_operator(radar, viewpoints, points[mask.ravel()])
+        operator = grt_operator(radar, viewpoints, points[mask.ravel()])
     if "seed" in accepted:
         options = {"seed": seed, **options}
     solver_options = options
@@ -331,17 +349,18 @@ def fit(
             trained = Scene(jnp.asarray(values.reshape(fine.shape)), extent, fine.granularity)
             # on the inverse grid too, ρ = 0 in voxels that hold no trained point
             rho = np.where(voxels_holding(grid, candidates[where]).ravel(), rho, 0)
+        kept = jnp.asarray(rho if mask is None else rho[mask.ravel()]) / scale  # solver's units
+        checked = time.perf_counter()
+        checks = _check(full, operator, signal, kept, mask)
+        check_seconds = time.perf_counter() - checked
+        stats |= checks
         if mask is not None:
-            kept = jnp.asarray(rho[mask.ravel()] / scale)  # the solver's units
-            checked = time.perf_counter()
-            leak = _support_leak(full, operator, signal, kept, mask)
-            leak_seconds = time.perf_counter() - checked
             stats |= {
                 "support_points": int(mask.sum()),
-                "support_leak": leak,
-                "support_leak_seconds": leak_seconds,
+                "support_leak_seconds": check_seconds,
                 **support_stats,
             }
+        _warn_if_failed(method, stats, mask is not None)
         scene = Scene(jnp.asarray(rho.reshape(grid.shape), jnp.complex64), extent, granularity)
         seconds = time.perf_counter() - start - watched[0]
         return FitResult(
@@ -367,23 +386,84 @@ def fit(
 
 
 _LEAK_VIEWS = 100  # as many as `estimate_support` backprojects by default
+_COHERENCE = 0.8  # cos(|ρ|, |Aᴴy|) below this: a RIFT field unlike the data (a smooth blob)
 
 
-def _support_leak(full, operator, signal, rho, mask) -> float:
-    """max over points outside ``mask`` of |Aᴴ(y − A_S ρ)|, over max over the support of
-    |A_Sᴴ y|: near the level of a scatterer the support left out, low when the fit explains
-    what the data backproject outside. One adjoint pass over the whole grid, from at most
-    `_LEAK_VIEWS` viewpoints spread over the training set: on the paper's 0.4 m grid each
-    100 views cost ~15 s here, so a 1000-view fit would pay minutes for a diagnostic."""
-    if mask.all():
-        return 0.0
-    rows = jnp.asarray(spread(full.fn.n_views, _LEAK_VIEWS))
+def _check(full, operator, signal, rho, mask) -> dict[str, float]:
+    """How well the returned ρ (on the operator's points, in the solver's units) explains
+    the data, from at most `_LEAK_VIEWS` viewpoints spread over the training set, so that a
+    1000-view fit does not pay minutes for a diagnostic (on the paper's 0.4 m grid each 100
+    views cost ~15 s here):
+
+    - ``data_residual``: ‖y − Aρ‖/‖y‖ (1: no better than the zero image);
+    - ``coherence``: cos(|ρ|, |Aᴴy|) over the operator's points. A reconstruction follows
+      the data's backprojection (≥ 0.96 for every run and for the truth in the default simple
+      scenes); RIFT(N)'s smooth-blob collapse scored 0.59-0.60 there (docs/experiments.md);
+    - ``support_leak`` (with a support): max outside the support of |Aᴴ(y − A_S ρ)|, over
+      max on it of |A_Sᴴ y|: near the level of a scatterer the support left out, low when
+      the fit explains what the data backproject outside (one adjoint pass over the grid).
+    """
+    rows = jnp.asarray(spread(operator.fn.n_views, _LEAK_VIEWS))
     signal = jnp.asarray(signal)[rows]
-    on_support, everywhere = operator.fn.subset(rows), full.fn.subset(rows)
-    peak = float(jnp.max(jnp.abs(gathered(on_support.adjoint(signal)))))
+    on_support = operator.fn.subset(rows)
+    back = np.abs(np.asarray(gathered(on_support.adjoint(signal))))
     residual = signal - gathered(on_support(jnp.asarray(rho)))
-    back = np.abs(np.asarray(gathered(everywhere.adjoint(residual)))).reshape(mask.shape)
-    return float(back[~mask].max() / peak) if peak > 0 else 0.0
+    norm = float(jnp.linalg.norm(signal))
+    magnitude = np.abs(np.asarray(rho))
+    scale = float(np.linalg.norm(magnitude) * np.linalg.norm(back))
+    out = {
+        "data_residual": float(jnp.linalg.norm(residual)) / norm if norm > 0 else 0.0,
+        "coherence": float(magnitude @ back) / scale if scale > 0 else 0.0,
+    }
+    if mask is None:
+        return out
+    leak = 0.0
+    if not mask.all() and (peak := back.max()) > 0:
+        outside = np.abs(np.asarray(gathered(full.fn.subset(rows).adjoint(residual))))
+        leak = float(outside.reshape(mask.shape)[~mask].max() / peak)
+    return out | {"support_leak": leak}
+
+
+class FitWarning(UserWarning):
+    """A fit ran to its end but likely failed: it explains the data no better than the zero
+    image, or its RIFT field is unlike the data's backprojection (`fit`'s checks)."""
+
+
+def _warn_if_failed(method: str, stats: dict, on_support: bool) -> None:
+    """A `FitWarning` naming the likely cause and the option that helps (see `_check`)."""
+    residual, coherence = stats["data_residual"], stats["coherence"]
+    rift = method.startswith("rift")
+    if residual >= 1:
+        if on_support and stats["support_leak"] >= 0.5:
+            cause = (
+                f"the support dropped part of the scene (support_leak "
+                f"{stats['support_leak']:.2f}): pass `support=None`, or a mask from "
+                "`rift_jax.estimate_support` with a lower `threshold`"
+            )
+        elif rift:
+            cause = (
+                "the INR did not fit the data: train longer (`epochs`, `patience=None`), "
+                "or use `method='fista'`"
+            )
+        else:
+            cause = (
+                "the grid cannot explain the data (scatterers between its points): try a "
+                "finer `granularity`"
+            )
+        warnings.warn(
+            f"fit ({method}): the reconstruction explains the data no better than the zero "
+            f"image (relative residual {residual:.2f} ≥ 1); likely {cause}.",
+            FitWarning,
+            stacklevel=4,  # the caller of fit
+        )
+    elif rift and coherence < _COHERENCE:
+        warnings.warn(
+            f"fit ({method}): the field is unlike the data's backprojection (cos(|ρ|, |Aᴴy|) "
+            f"= {coherence:.2f} < {_COHERENCE}): the smooth-blob collapse. Try "
+            "`method='fista'`, another `seed`, or a longer run (docs/rift.md, Collapse).",
+            FitWarning,
+            stacklevel=4,
+        )
 
 
 class GridWarning(UserWarning):

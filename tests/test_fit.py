@@ -68,7 +68,7 @@ def test_zero_signal_warns(small_cube):
     zeros = np.zeros((len(train), *radar.signal_shape), np.complex64)
     with pytest.warns(UserWarning, match="all zero"):
         result = rj.fit(zeros, train, radar=radar, extent=2.0, granularity=1.0, progress=False)
-    assert not np.any(result.scene.reflectivity)
+    assert not np.any(result.scene.reflectivity) and result.support is None  # none to see
     assert result.stopped.outcome is rj.solvers.Outcome.ZERO_SIGNAL
 
 
@@ -117,6 +117,7 @@ def test_warns_when_the_inverse_grid_does_not_nest():
     assert rj._scenes.nesting_granularities(2.0, 4 / 19) == pytest.approx([5 * 4 / 19])
 
 
+@pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # tiny budgets: RIFT fits little
 @pytest.mark.parametrize(
     "method, options",
     [("kaczmarz", {"iterations": 4}), ("fista", {"iterations": 4}), ("rift-n", {"epochs": 4})],
@@ -155,6 +156,7 @@ def test_monitor_sees_each_iteration_and_changes_nothing(method, options):
         rj.fit(scene, train, monitor=1, **common)
 
 
+@pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # tiny budgets: RIFT fits little
 @pytest.mark.parametrize(
     "method, options",
     [
@@ -200,3 +202,69 @@ def test_a_monitor_or_time_limit_ends_the_run_with_the_best_so_far(method, optio
     for bad in (0, -1.0, float("inf"), "60", True):
         with pytest.raises(ValueError, match="`time_limit` must be a positive finite number"):
             rj.fit(scene, train, time_limit=bad, **common)
+
+
+# -- defaults and the checks after a fit ---------------------------------------------------
+
+
+def test_defaults_are_fista_on_the_estimated_support(small_cube):
+    """`fit(scene, viewpoints)`: FISTA (the stress grid's best at every method's defaults)
+    on ``support="auto"``, exactly the mask `estimate_support` gives; `support=None` is the
+    whole grid."""
+    radar, scene, train, _ = small_cube
+    options = dict(radar=radar, granularity=0.5, iterations=5, progress=False)
+    result = rj.fit(scene, train, **options)
+    assert result.method == "fista"
+    data = rj.synthesize(scene, train, radar)
+    grid = rj.Scene.empty(scene.extent, 0.5)
+    expected = rj.estimate_support(data.signal, train, grid, radar=radar)
+    np.testing.assert_array_equal(result.support, expected)
+    assert result.n_points == expected.sum()  # here all 729: this radar's sidelobes are wide
+    whole = rj.fit(scene, train, support=None, **options)
+    assert whole.support is None and whole.n_points == expected.size
+    for checked in (result, whole):  # the checks run with or without a support
+        assert 0 <= checked.stats["data_residual"] < 1 and 0 < checked.stats["coherence"] <= 1
+    assert "support_leak" in result.stats and "support_leak" not in whole.stats
+
+
+def test_check_measures_residual_and_coherence_by_hand(small_cube):
+    """`_check`'s numbers against NumPy on the same views: ‖y − Aρ‖/‖y‖, and cos(|ρ|, |Aᴴy|),
+    1 for ρ = Aᴴy itself and lower for a flat ρ (a smooth blob)."""
+    from rift_jax._fit import _check
+
+    radar, scene, train, _ = small_cube
+    data = rj.synthesize(scene, train, radar)
+    grid = rj.Scene.empty(scene.extent, 2 * scene.granularity)
+    operator = rj.grt_operator(radar, train, grid.points())
+    signal = np.asarray(data.signal)
+    back = np.asarray(operator.fn.adjoint(signal))
+    matched = _check(operator, operator, signal, back, None)
+    assert matched["coherence"] == pytest.approx(1.0, abs=1e-5)
+    residual = signal - np.asarray(operator.fn(back))
+    assert matched["data_residual"] == pytest.approx(
+        np.linalg.norm(residual) / np.linalg.norm(signal), rel=1e-4
+    )
+    flat = _check(operator, operator, signal, np.ones_like(back), None)
+    expected = np.abs(back).sum() / (np.sqrt(back.size) * np.linalg.norm(back))
+    assert flat["coherence"] == pytest.approx(expected, rel=1e-4) and expected < 0.9
+
+
+def test_failed_fit_warnings_name_the_cause():
+    """Residual ≥ 1 names the support when it leaked, RIFT's training, or the grid; a
+    RIFT field unlike the backprojection names the smooth-blob collapse; a good fit is
+    silent."""
+    from rift_jax._fit import _warn_if_failed
+
+    cases = [
+        ("lsmr", {"data_residual": 1.2, "coherence": 0.9, "support_leak": 0.8}, True, "support"),
+        ("lsmr", {"data_residual": 1.0, "coherence": 0.9}, False, "finer `granularity`"),
+        ("rift-n", {"data_residual": 1.3, "coherence": 0.9, "support_leak": 0.1}, True, "INR"),
+        ("rift-s", {"data_residual": 0.5, "coherence": 0.6}, False, "smooth-blob"),
+    ]
+    for method, stats, on_support, cause in cases:
+        with pytest.warns(rj.FitWarning, match=cause):
+            _warn_if_failed(method, stats, on_support)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _warn_if_failed("fista", {"data_residual": 0.9, "coherence": 0.5}, False)  # not RIFT
+        _warn_if_failed("rift-n", {"data_residual": 0.9, "coherence": 0.85}, False)

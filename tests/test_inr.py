@@ -20,6 +20,10 @@ from rift_jax._solvers.inr import (
 )
 from rift_jax._support import mask_at
 
+# These tests train tiny budgets to test training's mechanics, not its quality: whether a
+# fit failed is `fit`'s FitWarning, tested in test_fit.py and test_stability.py.
+pytestmark = pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")
+
 
 @pytest.fixture(scope="module")
 def tiny():
@@ -334,7 +338,8 @@ def test_an_active_set_of_every_point_changes_nothing(small_cube):
     (the active set's GRT is the whole one, gathered)."""
     radar, scene, train, _ = small_cube
     common = dict(radar=radar, method="rift-n", granularity=0.5, epochs=12, progress=False)
-    plain = rj.fit(scene, train, **common)
+    common |= dict(support=None)  # every grid point, with and without an active set
+    plain = rj.fit(scene, train, prune=None, **common)
     pruned = rj.fit(scene, train, prune=1e-12, recheck_every=5, **common)
     assert pruned.stats["active_points"] == plain.stats["active_points"] == 729
     np.testing.assert_array_equal(pruned.history.loss, plain.history.loss)
@@ -377,8 +382,8 @@ def test_pruning_trains_the_scene_on_fewer_points(small_cube):
     given every epoch (with the default `patience` the unpruned run scored 0.80)."""
     radar, scene, train, test = small_cube
     common = dict(radar=radar, method="rift-n", granularity=0.5, epochs=160, progress=False)
-    common |= dict(patience=None)
-    plain = rj.fit(scene, train, **common)
+    common |= dict(patience=None, support=None)
+    plain = rj.fit(scene, train, prune=None, **common)
     pruned = rj.fit(scene, train, prune=0.05, recheck_every=20, **common)  # 2 set sizes, not 4
     active = pruned.stats["active_points"]
     assert 27 < active < 300  # the 27 voxels of the cube, and some of their neighbours

@@ -23,6 +23,7 @@ def scaled(scene: rj.Scene, factor: float) -> rj.Scene:
     return rj.Scene(scene.reflectivity * factor, scene.extent, scene.granularity)
 
 
+@pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # tiny budgets: RIFT fits little
 @pytest.mark.parametrize(
     "method, options, factors, tolerance",
     [
@@ -50,6 +51,7 @@ def test_signal_scale_changes_nothing(problem, method, options, factors, toleran
         assert error < tolerance, (factor, error)
 
 
+@pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # tiny budgets: RIFT fits little
 @pytest.mark.parametrize("method", ["kaczmarz", "rift-n"])
 def test_noise_degrades_smoothly_and_never_gives_nan(problem, method):
     """From noise-free data through 30, 20, 10 and 0 dB SNR the metrics stay finite and the
@@ -143,7 +145,10 @@ def test_gain_drift_is_detected_and_a_lasting_collapse_warns(tiny):
         return jnp.mean(jnp.abs(pred) ** 2) / jnp.mean(jnp.abs(target) ** 2)
 
     options = TINY | dict(epochs=60, batch_views=None, halve_every=None, learning_rate=0.3)
-    with pytest.warns(rj.solvers.CollapseWarning, match="gain drifted to zero"):
+    with (
+        pytest.warns(rj.FitWarning, match="no better than the zero image"),  # it predicts ~0
+        pytest.warns(rj.solvers.CollapseWarning, match="gain drifted to zero"),
+    ):
         result = rj.fit(scene, train, loss=shrink, retries=0, **options)
     assert result.stats["collapse"].startswith("gain drifted") and result.stats["attempts"] == 1
 
@@ -160,7 +165,10 @@ def test_a_flat_loss_is_retried_then_the_best_attempt_returned(tiny, caplog):
         runs.append(rj.fit(scene, train, learning_rate=1e-12, batch_views=None, **TINY))
         return runs[-1].scene.reflectivity
 
-    with pytest.warns(rj.solvers.CollapseWarning, match="loss flat from the start"):
+    with (
+        pytest.warns(rj.FitWarning, match="no better than the zero image.*INR did not fit"),
+        pytest.warns(rj.solvers.CollapseWarning, match="loss flat from the start"),
+    ):  # a field that never trained, its gain set to the data's energy: residual ≈ √2
         compiled = compilations(caplog, run)
     (result,) = runs
     assert sum(m.startswith("Compiling jit(_step)") for m in compiled) <= 1, compiled
