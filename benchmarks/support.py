@@ -213,9 +213,11 @@ def main(argv=None) -> dict:
         "rift-n auto": rift,
         "rift-n auto, patience 10": rift | dict(patience=10),
         "rift-n auto, fine": rift | dict(train_granularity=0.2),
-        "rift-n grid (partial)": dict(method="rift-n", epochs=args.full_epochs),
+        "rift-n grid (partial)": dict(
+            method="rift-n", support=None, prune=None, epochs=args.full_epochs
+        ),
         "lsmr auto": dict(method="lsmr", support="auto", iterations=20, tol=0.0),
-        "lsmr grid": dict(method="lsmr", iterations=20, tol=0.0),
+        "lsmr grid": dict(method="lsmr", support=None, iterations=20, tol=0.0),
     }
     for name, options in runs.items():
         result = rj.fit(scene, train, **common, **options)

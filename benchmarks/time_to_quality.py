@@ -115,21 +115,23 @@ def methods(cfg: Config, n_train: int) -> list[tuple[str, str, dict]]:
         options = {"iterations": cfg.iterations[method]} | limit
         if method == "gauss-newton":
             options["inner"] = 20  # LSMR steps per outer step
-        out += [(method, method, options), (f"{method} auto", method, options | AUTO)]
-    rift = rift_options(n_train, cfg.rift_steps) | {"patience": cfg.patience} | limit
+        out += [(method, method, options | GRID), (f"{method} auto", method, options | AUTO)]
+    rift = rift_options(n_train, cfg.rift_steps) | {"patience": cfg.patience, "prune": None}
+    rift |= limit
     fine = AUTO | {"train_granularity": cfg.forward}
     for method in [m for m in ("rift-n", "rift-s") if m in cfg.methods]:
         out += [
-            (method, method, rift),
+            (method, method, rift | GRID),
             (f"{method} auto", method, rift | AUTO),
             (f"{method} auto fine", method, rift | fine),
         ]
     if "rift-n" in cfg.methods:
-        out.append(("rift-n paper recipe", "rift-n", rift | {"recipe": "paper"}))
+        out.append(("rift-n paper recipe", "rift-n", rift | GRID | {"recipe": "paper"}))
     return out
 
 
 AUTO = {"support": "auto"}
+GRID = {"support": None}  # named: `fit`'s default is "auto"
 
 
 def runs(cfg: Config) -> list[Run]:

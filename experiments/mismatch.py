@@ -158,14 +158,15 @@ def label(method: str, snr: float | None) -> str:
 
 def options(method: str, granularity: float, cfg: Config) -> dict:
     """`fit` options of ``method`` on the grid of ``granularity``."""
+    whole = {"support": None}  # every grid point: a truth off the grid has no support
     if method.startswith("rift"):
-        out = rift_options(cfg.n_train, cfg.rift_steps)
+        out = rift_options(cfg.n_train, cfg.rift_steps) | whole | {"prune": None}
         if method == "rift-n-fine":  # the last half of the steps on a grid twice finer
             out |= {"train_granularity": granularity / 2}
         return out
     if method == "kaczmarz":
-        return {"iterations": cfg.sweeps, "tol": 1e-3}
-    return {"iterations": cfg.ls_iterations}
+        return {"iterations": cfg.sweeps, "tol": 1e-3} | whole
+    return {"iterations": cfg.ls_iterations} | whole
 
 
 def runs(cfg: Config) -> list[Run]:

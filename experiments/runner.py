@@ -23,6 +23,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
 
@@ -210,10 +211,12 @@ class Budget:
         options = rift_options(n_train, self.rift_steps) | self._support()
         if self.rift_prune is not None:
             options |= {"prune": self.rift_prune, "recheck_every": self.recheck_every}
+        else:  # named: `fit`'s default prunes
+            options |= {"prune": None}
         return options | {"patience": self.rift_patience}
 
     def _support(self) -> dict:
-        return {} if self.support is None else {"support": self.support}
+        return {"support": self.support}  # named: `fit`'s default is "auto"
 
     def describe(self, model: str = "RIFT", fista: bool = False) -> str:
         """The budgets in words, for a results page (FISTA's too, if it ran)."""
@@ -299,28 +302,46 @@ def fit_and_evaluate(
     scene, train, test, *, radar, method, granularity, seed, progress, options, monitor=None
 ):
     """Reconstruct ``scene`` from its signals at ``train`` on the inverse grid of
-    ``granularity`` and score it against the truth at ``test``: (FitResult, metrics).
-    ``monitor`` is `fit`'s (e.g. a `Trace`).
+    ``granularity`` and score it against the truth at ``test``: (FitResult, metrics, the
+    messages of the warnings that it likely failed). ``monitor`` is `fit`'s (e.g. a
+    `Trace`).
 
     A run that diverges (least squares or RIFT) is scored on its best iterate before the
     divergence; its ``result.stopped`` says ``Outcome.DIVERGED`` and where (the paper, too,
-    reports its failed runs)."""
-    try:
-        result = rj.fit(
-            scene,
-            train,
-            radar=radar,
-            method=method,
-            granularity=granularity,
-            seed=seed,
-            progress=progress,
-            monitor=monitor,
-            **options,
-        )
-    except rj.solvers.Diverged as error:
-        result = error.result
-        print(f"{method}: {error}; scoring the best iterate before it", flush=True)
-    return result, result.evaluate(scene, test)
+    reports its failed runs). A run that `fit` warns may have failed (a `FitWarning`, or
+    RIFT's `CollapseWarning`) is kept and scored as well: its row holds the warning, so a
+    study can tell whether the warning was right."""
+    failed = (rj.FitWarning, rj.solvers.CollapseWarning)
+    with warnings.catch_warnings(record=True) as caught:
+        for category in failed:
+            warnings.simplefilter("always", category)
+        try:
+            result = rj.fit(
+                scene,
+                train,
+                radar=radar,
+                method=method,
+                granularity=granularity,
+                seed=seed,
+                progress=progress,
+                monitor=monitor,
+                **options,
+            )
+        except rj.solvers.Diverged as error:
+            result = error.result
+            print(f"{method}: {error}; scoring the best iterate before it", flush=True)
+    warned = []
+    for caught_warning in caught:  # a likely failure is kept with the row; others go on
+        if issubclass(caught_warning.category, failed):
+            warned.append(str(caught_warning.message))
+        else:
+            warnings.warn_explicit(
+                caught_warning.message,
+                caught_warning.category,
+                caught_warning.filename,
+                caught_warning.lineno,
+            )
+    return result, result.evaluate(scene, test), warned
 
 
 class Trace:
@@ -518,7 +539,7 @@ def execute(
         if trace is not None:
             tracer = Trace(scenes[run.scene], test, radar, grids[run.scene], **trace)
         start = time.perf_counter()
-        result, metrics = fit_and_evaluate(
+        result, metrics, warned = fit_and_evaluate(
             scenes[run.scene],
             train,
             test,
@@ -548,6 +569,7 @@ def execute(
             # RIFT's collapse check: what was retried, and what still holds (None: nothing)
             "remedies": result.stats.get("remedies", []),
             "collapse": result.stats.get("collapse"),
+            "warnings": warned,  # where `fit` judged the run a likely failure
         }
         results["rows"].append(row)
         results["wall_seconds"] += wall
@@ -555,7 +577,8 @@ def execute(
         volumes[f"{run.scene}/{run.label}"] = np.asarray(result.scene.reflectivity)
         print(
             f"{run.scene} {run.label}: m-SSIM {row['m_ssim']:.4f}  m-COS {row['m_cos']:.4f}  "
-            f"t-IoU {row['t_iou']:.4f}  p-RMSE {row['p_rmse']:.4f}  ({wall:.0f} s)",
+            f"t-IoU {row['t_iou']:.4f}  p-RMSE {row['p_rmse']:.4f}  ({wall:.0f} s)"
+            + "".join(f"\n  warned: {message}" for message in warned),
             flush=True,
         )
         save(final=False)
@@ -602,11 +625,16 @@ def _upgrade(row: dict, seed: int) -> dict:
     """A saved row as this version writes it. Rows from before typed outcomes (95641d3)
     said why a run ended in free text, and held a divergence's message under "diverged";
     rows from before rows held their seed were made with the file's. A RIFT row whose
-    options name no `patience` ran every epoch: None was the default before 10."""
+    options name no `patience` ran every epoch: None was the default before 10; one that
+    names no `prune` trained every point, and a row that names no `support` ran on the
+    whole grid (the defaults before "auto" and 0.05)."""
     row = {"seed": seed} | row
     options = row.get("options")
-    if str(row.get("method", "")).startswith("rift") and isinstance(options, dict):
-        row["options"] = options if "patience" in options else options | {"patience": None}
+    if isinstance(options, dict):
+        options = {"support": None} | options
+        if str(row.get("method", "")).startswith("rift"):
+            options = {"patience": None, "prune": None} | options
+        row["options"] = options
     legacy = row["stopped"]
     if not isinstance(legacy, str):
         return row

@@ -166,20 +166,28 @@ def test_resume_keeps_runs_from_before_the_experiment_gained_settings(
 
 
 def test_the_experiments_name_rifts_patience():
-    """`fit` stops RIFT once converged by default (patience 10); the experiments say what
-    they do (every step, or the paper scale's 10), so their committed results stay what the
-    code makes, and rows from before name none: they ran every epoch."""
+    """`fit` stops RIFT once converged (patience 10), prunes (0.05) and estimates a support
+    by default; the experiments say what they do (every step, or the paper scale's 10; the
+    whole grid or the support), so their committed results stay what the code makes, and
+    rows from before name none: they ran every epoch, on every point."""
     assert runner.rift_options(100, 200)["patience"] is None
-    assert runner.Budget(1, 4).rift(100)["patience"] is None
-    assert runner.Budget(1, 4, **runner.PAPER_STOPPING).rift(100)["patience"] == 10
+    plain = runner.Budget(1, 4)
+    assert plain.rift(100)["patience"] is None and plain.rift(100)["prune"] is None
+    assert plain.ls()["support"] is None and plain.fista()["support"] is None
+    paper = runner.Budget(1, 4, **runner.PAPER_STOPPING).rift(100)
+    assert paper["patience"] == 10 and paper["prune"] == 0.05 and paper["support"] == "auto"
     stop = rj.solvers.Stop(rj.solvers.Outcome.BUDGET, 3).to_json()
     row = {"scene": "s", "run": "RIFT(N)-1", "method": "rift-n", "iterations": 3}
-    row |= {"stopped": stop, "seed": 0, "options": {"epochs": 3, "patience": 10}}
+    named = {"epochs": 3, "patience": 10, "prune": 0.05, "support": "auto"}
+    row |= {"stopped": stop, "seed": 0, "options": named}
     assert runner._upgrade(row, seed=0) == row
     older = row | {"options": {"epochs": 3}}
-    assert runner._upgrade(older, seed=0)["options"] == {"epochs": 3, "patience": None}
-    lsmr = row | {"method": "lsmr", "options": {"iterations": 3}}
+    expected = {"epochs": 3, "patience": None, "prune": None, "support": None}
+    assert runner._upgrade(older, seed=0)["options"] == expected
+    lsmr = row | {"method": "lsmr", "options": {"iterations": 3, "support": "auto"}}
     assert runner._upgrade(lsmr, seed=0) == lsmr
+    older_lsmr = lsmr | {"options": {"iterations": 3}}
+    assert runner._upgrade(older_lsmr, seed=0)["options"] == {"iterations": 3, "support": None}
 
 
 def test_resume_refuses_a_changed_setting_unless_it_only_shapes_the_runs():
@@ -330,17 +338,70 @@ def check_stability_counts(out):
     assert isinstance(saved["failures"], int)
     assert saved["failures"] == sum(bool(r["failed"]) for r in saved["rows"])
     text = (out / "results.md").read_text()
-    assert f"Failures: {saved['failures']} of {len(saved['rows'])}" in text
+    counted = sum(r["method"] != stability.BASELINE for r in saved["rows"])
+    assert f"Failures: {saved['failures']} of {counted} counted runs" in text
 
 
 def test_stability_judges_a_run_against_its_cell():
-    """A non-finite metric, or an m-SSIM under half its cell's median, fails a run."""
+    """A non-finite metric, an m-SSIM under half its cell's median, or under 0.5 where the
+    cell's best is ≥ 0.9, fails a run; never the baseline's (reported, not counted)."""
     row = {"scene": "s", "options": {}, "m_cos": 0.5, "t_iou": 0.5, "p_rmse": 1.0, "residual": 1}
+    row |= {"n_train": 10, "seed": 0}
     rows = [row | {"m_ssim": v, "method": "m"} for v in (0.8, 0.7, 0.3, 0.9)]
     rows.append(row | {"m_ssim": 0.8, "method": "m", "residual": float("nan")})
+    rows.append(row | {"m_ssim": 0.1, "method": stability.BASELINE})  # in the median only
+    rows.append(row | {"m_ssim": 0.1, "method": "m", "n_train": 30})  # a cell of its own
     verdicts = [r["failed"] for r in stability.judge(rows)]
     assert verdicts[:2] == [None, None] and verdicts[3] is None
-    assert "half the median 0.800" in verdicts[2] and verdicts[4] == "non-finite metric"
+    assert "half the cell's median 0.750" in verdicts[2] and verdicts[4] == "non-finite metric"
+    assert verdicts[5] is None and verdicts[6] is None  # the baseline; alone in its cell
+    strong = [row | {"m_ssim": v, "method": "m"} for v in (0.95, 0.45, 0.6)]
+    assert [r["failed"] for r in stability.judge(strong)][1].endswith("best is 0.950")
+
+
+def test_stability_runs_every_method_at_its_defaults_on_shared_data():
+    """The stress grid's named defaults are still `fit`'s and `Recipe`'s; every cell runs
+    every method with the same seed, and every seed runs at every level of every factor."""
+    import inspect
+
+    assert inspect.signature(rj.fit).parameters["support"].default == "auto"
+    assert stability.DEFAULTS == {"support": "auto"}
+    recipe = rj.solvers.Recipe()
+    assert stability.RIFT_DEFAULTS == {"prune": recipe.prune, "patience": recipe.patience}
+    cfg = stability.SCALES["default"]
+    asked = stability.runs(cfg)
+    cells = {}
+    for run in asked:
+        cell = (run.scene, run.n_train, run.options.get("snr_db"))
+        cells.setdefault(cell, set()).add((run.method, run.seed))
+    assert len(cells) == len(cfg.scenes) * len(cfg.views) * len(cfg.snrs)
+    for methods_seeds in cells.values():
+        seeds = {seed for _, seed in methods_seeds}
+        assert len(seeds) == cfg.seeds_per_cell
+        assert methods_seeds == {(m, s) for m in cfg.methods for s in seeds}
+    for level in ("scene", "n_train", "snr"):
+        index = {"scene": 0, "n_train": 1, "snr": 2}[level]
+        by_level = {}
+        for cell, methods_seeds in cells.items():
+            by_level.setdefault(cell[index], set()).update(s for _, s in methods_seeds)
+        assert all(seen == set(cfg.seeds) for seen in by_level.values()), level
+
+
+def test_stability_win_rates_count_shared_runs_only():
+    base = {"scene": "s", "options": {}, "seed": 0}
+    rows = [
+        base | {"n_train": 10, "method": "a", "m_ssim": 0.5},
+        base | {"n_train": 10, "method": "b", "m_ssim": 0.4},
+        base | {"n_train": 30, "method": "a", "m_ssim": 0.5},
+        base | {"n_train": 30, "method": "b", "m_ssim": 0.6},
+        base | {"n_train": 100, "method": "a", "m_ssim": 0.9},  # b did not run: no comparison
+    ]
+    for row in rows:
+        row["noise"] = "noise-free"
+    assert stability.win_rates(rows, ("a", "b"))[("all", "a", "b")] == (1, 2)
+    by_views = stability.win_rates(rows, ("a", "b"), "n_train")
+    assert by_views[(10, "a", "b")] == (1, 1) and by_views[(30, "b", "a")] == (1, 1)
+    assert (100, "a", "b") not in by_views
 
 
 def check_mismatch_cells(results):
