@@ -261,12 +261,13 @@ def fit(
     points = grid.points()
     operator = grt_operator(radar, viewpoints, points)
     support_stats = {}  # where a support's own cost goes: the estimate, the leak check
-    if isinstance(support, str) and support == "auto" and not np.any(np.asarray(signal)):
-        support = None  # a zero signal shows no support; every solver returns the zero scene
     if isinstance(support, str) and support == "auto":
-        estimating = time.perf_counter()
-        support = estimate_support(signal, viewpoints, grid, radar=radar)
-        support_stats["support_seconds"] = time.perf_counter() - estimating
+        if not np.any(np.asarray(signal)):
+            support = None  # a zero signal shows no support; every solver returns zero
+        else:
+            estimating = time.perf_counter()
+            support = estimate_support(signal, viewpoints, grid, radar=radar)
+            support_stats["support_seconds"] = time.perf_counter() - estimating
     mask = None if support is None else as_mask(support, grid)
     full = operator  # the whole grid's, for the checks after the fit
     if mask is not None:
