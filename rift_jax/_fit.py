@@ -26,7 +26,13 @@ from ._operator import grt_operator
 from ._scenes import Scene, grid_size, nesting_granularities, shared_fraction
 from ._sharding import gathered
 from ._solvers import Diverged, History, Stop
-from ._support import as_mask, estimate_support, mask_at, voxels_holding
+from ._support import (
+    as_mask,
+    estimate_support,
+    largest_backprojection,
+    mask_at,
+    voxels_holding,
+)
 from ._synthesis import PointScatterers, RadarData, synthesize
 from ._validation import check_finite, check_instance, check_nonnegative_int, check_positive
 
@@ -269,7 +275,6 @@ def fit(
             support = estimate_support(signal, viewpoints, grid, radar=radar)
             support_stats["support_seconds"] = time.perf_counter() - estimating
     mask = None if support is None else as_mask(support, grid)
-    full = operator  # the whole grid's, for the checks after the fit
     if mask is not None:
         operator = grt_operator(radar, viewpoints, points[mask.ravel()])
     if "seed" in accepted:
@@ -352,7 +357,8 @@ def fit(
             rho = np.where(voxels_holding(grid, candidates[where]).ravel(), rho, 0)
         kept = jnp.asarray(rho if mask is None else rho[mask.ravel()]) / scale  # solver's units
         checked = time.perf_counter()
-        checks = _check(full, operator, signal, kept, mask)
+        outside = None if mask is None else points[~mask.ravel()]
+        checks = _check(operator, signal, kept, outside, viewpoints)
         check_seconds = time.perf_counter() - checked
         stats |= checks
         if mask is not None:
@@ -390,7 +396,7 @@ _LEAK_VIEWS = 100  # as many as `estimate_support` backprojects by default
 _COHERENCE = 0.8  # cos(|ρ|, |Aᴴy|) below this: a RIFT field unlike the data (a smooth blob)
 
 
-def _check(full, operator, signal, rho, mask) -> dict[str, float]:
+def _check(operator, signal, rho, outside, viewpoints) -> dict[str, float]:
     """How well the returned ρ (on the operator's points, in the solver's units) explains
     the data, from at most `_LEAK_VIEWS` viewpoints spread over the training set, so that a
     1000-view fit does not pay minutes for a diagnostic (on the paper's 0.4 m grid each 100
@@ -400,9 +406,10 @@ def _check(full, operator, signal, rho, mask) -> dict[str, float]:
     - ``coherence``: cos(|ρ|, |Aᴴy|) over the operator's points. A reconstruction follows
       the data's backprojection (≥ 0.96 for every run and for the truth in the default simple
       scenes); RIFT(N)'s smooth-blob collapse scored 0.59-0.60 there (docs/experiments.md);
-    - ``support_leak`` (with a support): max outside the support of |Aᴴ(y − A_S ρ)|, over
-      max on it of |A_Sᴴ y|: near the level of a scatterer the support left out, low when
-      the fit explains what the data backproject outside (one adjoint pass over the grid).
+    - ``support_leak`` (with a support; ``outside`` holds the grid's other points): max
+      outside the support of |Aᴴ(y − A_S ρ)|, over max on it of |A_Sᴴ y|: near the level of
+      a scatterer the support left out, low when the fit explains what the data backproject
+      outside (`rift_jax._support.largest_backprojection`: screened, exact at its maximum).
     """
     rows = jnp.asarray(spread(operator.fn.n_views, _LEAK_VIEWS))
     signal = jnp.asarray(signal)[rows]
@@ -416,12 +423,12 @@ def _check(full, operator, signal, rho, mask) -> dict[str, float]:
         "data_residual": float(jnp.linalg.norm(residual)) / norm if norm > 0 else 0.0,
         "coherence": float(magnitude @ back) / scale if scale > 0 else 0.0,
     }
-    if mask is None:
+    if outside is None:
         return out
     leak = 0.0
-    if not mask.all() and (peak := back.max()) > 0:
-        outside = np.abs(np.asarray(gathered(full.fn.subset(rows).adjoint(residual))))
-        leak = float(outside.reshape(mask.shape)[~mask].max() / peak)
+    if len(outside) and (peak := back.max()) > 0:
+        views = viewpoints[np.asarray(rows)]
+        leak = largest_backprojection(residual, views, outside, operator.fn.radar) / float(peak)
     return out | {"support_leak": leak}
 
 

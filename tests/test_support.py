@@ -161,7 +161,8 @@ def _box_scenes(extent: float) -> dict[str, rj.Scene]:
 
 def test_auto_support_keeps_every_true_voxel():
     """The paper's radar, 60 views, forward grid 0.2 m and inverse grid 0.4 m over ±2 m:
-    every voxel holding a scatterer is kept, while most of the grid is skipped. Sampled only
+    every voxel holding a scatterer is kept, while most of the grid is skipped; screening
+    with the fast backprojection (the default) gives the exact mask. Sampled only
     at the voxel centres (``oversample=1``), the same backprojection loses true voxels:
     the check can fail, and the finer sampling is what passes it."""
     radar = rj.Radar()
@@ -182,7 +183,9 @@ def test_auto_support_keeps_every_true_voxel():
         assert not mask.flags.writeable and mask.shape == grid.shape
         assert not np.any(truth & ~mask), f"{name}: lost {np.sum(truth & ~mask)} true voxels"
         assert mask.sum() < 0.5 * mask.size, f"{name}: kept {mask.sum()} of {mask.size}"
-        coarse = rj.estimate_support(signal, train, grid, radar=radar, oversample=1)
+        exact = rj.estimate_support(signal, train, grid, radar=radar, exact=True)
+        np.testing.assert_array_equal(mask, exact, err_msg=f"{name}: the screen changed it")
+        coarse = rj.estimate_support(signal, train, grid, radar=radar, oversample=1, exact=True)
         lost_coarse += np.sum(truth & ~coarse)
     assert lost_coarse > 0
 
@@ -216,6 +219,7 @@ def test_bad_estimate_support_input(small_cube):
         (dict(dilation=-1), "dilation"),
         (dict(oversample=0), "oversample"),
         (dict(max_views=0), "max_views"),
+        (dict(exact="yes"), "exact"),
     ]:
         with pytest.raises(ValueError, match=match):
             rj.estimate_support(signal, train, grid, radar=radar, **kwargs)
