@@ -5,6 +5,7 @@ need).
     python -m benchmarks.support [--repeats 3] [--epochs 100] [--full-epochs 2]
     python -m benchmarks.support --coverage
     python -m benchmarks.support --screen
+    python -m benchmarks.support --target
 
 Workload: the cube (2 m, ρ = 1) synthesised on the paper's forward grid (0.2 m over ±5 m,
 51³), reconstructed on its inverse grid (0.4 m, 26³ = 17,576 points) from 100 training
@@ -24,6 +25,11 @@ viewpoints, scored on 100 others. Prints, in one run:
 - RIFT(N)-100 on the whole grid for ``--full-epochs`` epochs, and the whole run's time
   estimated from its seconds per epoch (the full run takes ~half an hour here);
 - LSMR (20 steps) on the estimated support and on the whole grid: seconds and metrics.
+
+``--target`` times what issue 31 sets a target for (≤ 45 s): RIFT(N)-100 on the cube at
+``fit``'s defaults (``support="auto"``, ``prune=0.05``, stopping once converged), the
+estimate included, in a fresh process (compilation included) and again (compiled); and
+the estimate alone, screened (the default) and exact, with whether their masks agree.
 
 ``--coverage`` instead checks ``support="auto"`` on the paper's five scenes and on random
 box scenes (ρ from 0.25 to 1, seeds 0-9; the defaults were chosen on the paper's scenes and
@@ -78,6 +84,41 @@ def random_boxes(seed: int, extent: float = 5.0) -> rj.Scene:
         for _ in range(rng.integers(2, 6))
     ]
     return _scene_from_boxes(boxes, extent, 0.2)
+
+
+def target(radar, scene, train, test, grid, repeats: int) -> dict:
+    out = {"matmul_G_per_s": complex_matmul_rate(repeats=repeats)}
+    print(f"complex64 matmul (1024³): {out['matmul_G_per_s']:.2f} G/s", flush=True)
+    signal = rj.synthesize(scene, train, radar).signal
+    for exact in (False, True, False):  # the screened estimate's first call compiles
+        start = time.perf_counter()
+        mask = rj.estimate_support(signal, train, grid, radar=radar, exact=exact)
+        seconds = time.perf_counter() - start
+        name = "exact" if exact else "screened" if "exact" in out else "screened, first"
+        out[name] = {"seconds": seconds, "points": int(mask.sum())}
+        print(f"estimate_support, {name}: {seconds:.1f} s, {mask.sum()} points", flush=True)
+        out.setdefault("masks", []).append(mask)
+    masks = out.pop("masks")
+    out["screened_equals_exact"] = bool(np.array_equal(masks[0], masks[1]))
+    print(f"the screened mask equals the exact one: {out['screened_equals_exact']}")
+    for run in ("first", "second"):
+        result = rj.fit(scene, train, radar=radar, method="rift-n", progress=False)
+        metrics = result.evaluate(scene, test)
+        split = {k: result.stats.get(k) for k in ("support_seconds", "support_leak_seconds")}
+        out[f"rift-n default, {run}"] = {
+            "seconds": result.seconds,
+            "epochs": len(result.history.seconds),
+            **split,
+            **metrics,
+        }
+        print(
+            f"RIFT(N)-100 at fit's defaults, {run} run: {result.seconds:.1f} s "
+            f"({len(result.history.seconds)} records; estimate {split['support_seconds']:.1f} s, "
+            f"checks {split['support_leak_seconds']:.1f} s)  m-SSIM {metrics['m_ssim']:.3f}  "
+            f"p-RMSE {metrics['p_rmse']:.3f}",
+            flush=True,
+        )
+    return out
 
 
 def coverage(radar, train, grid) -> dict:
@@ -167,6 +208,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--full-epochs", type=int, default=2)
     parser.add_argument("--coverage", action="store_true")
     parser.add_argument("--screen", action="store_true")
+    parser.add_argument("--target", action="store_true")
     args = parser.parse_args(argv)
     if args.full_epochs < 2:
         parser.error("--full-epochs must be at least 2 (the first epoch compiles)")
@@ -179,6 +221,8 @@ def main(argv=None) -> dict:
         return coverage(radar, train, grid)
     if args.screen:
         return screen(radar, train, grid)
+    if args.target:
+        return target(radar, scene, train, test, grid, args.repeats)
     support = cube_support(scene, grid)
     out = {"support_points": int(support.sum()), "grid_points": int(support.size)}
     print(f"support: {support.sum()} of {support.size} points")

@@ -514,6 +514,7 @@ def execute(
         volumes[f"truth/{key}"] = np.asarray(scene.resample(grids[key]).reflectivity)
 
     drawn = time.perf_counter()
+    supports = SharedSupports(radar)
 
     def save(final: bool):
         nonlocal drawn
@@ -539,6 +540,11 @@ def execute(
         if trace is not None:
             tracer = Trace(scenes[run.scene], test, radar, grids[run.scene], **trace)
         start = time.perf_counter()
+        options = dict(run.options)
+        shared = None
+        if options.get("support", "auto") == "auto":  # fit's default, named or not
+            shared = supports.get(scenes[run.scene], train, grids[run.scene], run_seed, options)
+            options["support"] = shared.mask
         result, metrics, warned = fit_and_evaluate(
             scenes[run.scene],
             train,
@@ -548,7 +554,7 @@ def execute(
             granularity=grids[run.scene],
             seed=run_seed,
             progress=progress,
-            options=dict(run.options),
+            options=options,
             monitor=tracer,
         )
         wall = time.perf_counter() - start
@@ -571,6 +577,8 @@ def execute(
             "collapse": result.stats.get("collapse"),
             "warnings": warned,  # where `fit` judged the run a likely failure
         }
+        if shared is not None:  # estimated once for every run on the same data
+            row |= {"support_seconds": shared.seconds, "support_shared": shared.reused}
         results["rows"].append(row)
         results["wall_seconds"] += wall
         results["histories"][f"{run.scene}/{run.label}"] = history_record(history)
@@ -584,6 +592,38 @@ def execute(
         save(final=False)
     save(final=True)
     return results
+
+
+@dataclasses.dataclass(frozen=True)
+class SharedSupport:
+    mask: np.ndarray
+    seconds: float  # the estimate's, once for all the runs that share it
+    reused: bool  # whether an earlier run estimated it
+
+
+class SharedSupports:
+    """``support="auto"`` estimated once per dataset (scene, training views, noise and its
+    seed, inverse grid), not once per run: every method that runs on the same data gets the
+    same mask, for the price of one estimate. Each run's `fit` then takes the mask as its
+    support, so its ``fit_seconds`` leave the estimate out; the row's ``support_seconds``
+    holds it."""
+
+    def __init__(self, radar: rj.Radar):
+        self.radar = radar
+        self.masks: dict = {}
+
+    def get(self, scene, train, granularity, seed, options) -> SharedSupport:
+        snr_db = options.get("snr_db")
+        key = (id(scene), train.azimuth.tobytes(), train.polar.tobytes(), granularity, snr_db)
+        key += (seed if snr_db is not None else None,)  # the noise's seed, if any noise
+        if key in self.masks:
+            return dataclasses.replace(self.masks[key], reused=True)
+        start = time.perf_counter()
+        signal = rj.synthesize(scene, train, self.radar, snr_db=snr_db, seed=seed).signal
+        grid = rj.Scene.empty(scene.extent, granularity)
+        mask = rj.estimate_support(signal, train, grid, radar=self.radar)
+        self.masks[key] = SharedSupport(mask, time.perf_counter() - start, False)
+        return self.masks[key]
 
 
 def _as_json(value):

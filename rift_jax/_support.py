@@ -244,16 +244,23 @@ def exact_backprojection(signal, viewpoints, points, radar, *, pad: bool) -> np.
     return np.abs(np.asarray(gathered(operator.fn.adjoint(jnp.asarray(signal)))))[:n]
 
 
+_LARGEST_CANDIDATES = 256
+
+
 def largest_backprojection(signal, viewpoints, points, radar) -> float:
-    """max over ``points`` of |Aᴴ y|, exactly, for a fraction of the cost: the exact adjoint
-    runs only where `fast_backprojection` reaches ``SCREEN_MARGIN`` of its own maximum."""
+    """max over ``points`` of |Aᴴ y| for a fraction of the cost: the exact adjoint runs only
+    at the points where `fast_backprojection` reaches ``SCREEN_MARGIN`` of its own maximum,
+    at most the `_LARGEST_CANDIDATES` brightest of them. Exact wherever the maximum stands
+    out of the backprojection (tested); where hundreds of points come within ~5 % of it (a
+    residual like noise), the brightest ones screened are among them, so the value is
+    within the screen's error."""
     fast = np.abs(np.asarray(fast_backprojection(signal, viewpoints, points, radar)))
     if fast.max() == 0:
         return 0.0
-    candidates = fast >= SCREEN_MARGIN * fast.max()
-    return float(
-        exact_backprojection(signal, viewpoints, points[candidates], radar, pad=True).max()
-    )
+    candidates = np.flatnonzero(fast >= SCREEN_MARGIN * fast.max())
+    candidates = candidates[np.argsort(fast[candidates])[::-1][:_LARGEST_CANDIDATES]]
+    exact = exact_backprojection(signal, viewpoints, points[candidates], radar, pad=True)
+    return float(exact.max())
 
 
 def ladder_size(n: int) -> int:
