@@ -539,12 +539,15 @@ def execute(
         tracer = None
         if trace is not None:
             tracer = Trace(scenes[run.scene], test, radar, grids[run.scene], **trace)
-        start = time.perf_counter()
         options = dict(run.options)
         shared = None
-        if options.get("support", "auto") == "auto":  # fit's default, named or not
-            shared = supports.get(scenes[run.scene], train, grids[run.scene], run_seed, options)
+        if trace is None and isinstance(options.get("support", "auto"), str):
+            # fit's default, named or not; a traced run keeps the estimate on fit's clock
+            shared = supports.get(
+                run.scene, scenes[run.scene], train, grids[run.scene], run_seed, options
+            )
             options["support"] = shared.mask
+        start = time.perf_counter()
         result, metrics, warned = fit_and_evaluate(
             scenes[run.scene],
             train,
@@ -564,9 +567,11 @@ def execute(
         row["seed"] = run_seed
         if tracer is not None:
             row["trace"] = tracer.finish(result)
+        # a shared estimate counts in every run's own time, as if the run had made it
+        own = 0.0 if shared is None else shared.seconds
         row |= {
-            "fit_seconds": result.seconds,
-            "wall_seconds": wall,  # fit + evaluation (test signals of truth and prediction)
+            "fit_seconds": result.seconds + own,
+            "wall_seconds": wall + own,  # fit + evaluation (test signals of truth, prediction)
             "iterations": len(history),
             "seconds_per_iteration": seconds_per_iteration(result),
             "stopped": result.stopped.to_json(),  # an Outcome and the iteration it came at
@@ -578,9 +583,9 @@ def execute(
             "warnings": warned,  # where `fit` judged the run a likely failure
         }
         if shared is not None:  # estimated once for every run on the same data
-            row |= {"support_seconds": shared.seconds, "support_shared": shared.reused}
+            row |= {"support_seconds": shared.seconds, "support_reused": shared.reused}
         results["rows"].append(row)
-        results["wall_seconds"] += wall
+        results["wall_seconds"] += wall + (own if shared and not shared.reused else 0.0)
         results["histories"][f"{run.scene}/{run.label}"] = history_record(history)
         volumes[f"{run.scene}/{run.label}"] = np.asarray(result.scene.reflectivity)
         print(
@@ -595,35 +600,44 @@ def execute(
 
 
 @dataclasses.dataclass(frozen=True)
-class SharedSupport:
-    mask: np.ndarray
-    seconds: float  # the estimate's, once for all the runs that share it
-    reused: bool  # whether an earlier run estimated it
+class EstimatedSupport:
+    """A ``support="auto"`` estimate kept for the runs on the same data: the mask (None for a
+    zero signal, as `fit` does: zero data show no support), the seconds it took, and
+    whether the run asking for it is reusing it."""
+
+    mask: np.ndarray | None
+    seconds: float
+    reused: bool
 
 
 class SharedSupports:
     """``support="auto"`` estimated once per dataset (scene, training views, noise and its
     seed, inverse grid), not once per run: every method that runs on the same data gets the
-    same mask, for the price of one estimate. Each run's `fit` then takes the mask as its
-    support, so its ``fit_seconds`` leave the estimate out; the row's ``support_seconds``
-    holds it."""
+    same mask, for the price of one estimate. `fit` then takes the mask as its support; the
+    runner adds the estimate's seconds to every run's ``fit_seconds``, so each run's time
+    is still what it would cost alone, and the row's ``support_seconds`` names the share."""
 
     def __init__(self, radar: rj.Radar):
         self.radar = radar
-        self.masks: dict = {}
+        self.estimates: dict = {}
 
-    def get(self, scene, train, granularity, seed, options) -> SharedSupport:
+    def get(self, name: str, scene, train, granularity, seed, options) -> EstimatedSupport:
+        """The estimate for scene ``name`` from its signals at ``train`` (with the run's
+        ``snr_db`` and noise ``seed``, as `fit` synthesises them) on the inverse grid of
+        ``granularity``."""
         snr_db = options.get("snr_db")
-        key = (id(scene), train.azimuth.tobytes(), train.polar.tobytes(), granularity, snr_db)
+        key = (name, train.azimuth.tobytes(), train.polar.tobytes(), granularity, snr_db)
         key += (seed if snr_db is not None else None,)  # the noise's seed, if any noise
-        if key in self.masks:
-            return dataclasses.replace(self.masks[key], reused=True)
+        if key in self.estimates:
+            return dataclasses.replace(self.estimates[key], reused=True)
         start = time.perf_counter()
         signal = rj.synthesize(scene, train, self.radar, snr_db=snr_db, seed=seed).signal
-        grid = rj.Scene.empty(scene.extent, granularity)
-        mask = rj.estimate_support(signal, train, grid, radar=self.radar)
-        self.masks[key] = SharedSupport(mask, time.perf_counter() - start, False)
-        return self.masks[key]
+        mask = None
+        if np.any(np.asarray(signal)):
+            grid = rj.Scene.empty(scene.extent, granularity)
+            mask = rj.estimate_support(signal, train, grid, radar=self.radar)
+        self.estimates[key] = EstimatedSupport(mask, time.perf_counter() - start, False)
+        return self.estimates[key]
 
 
 def _as_json(value):

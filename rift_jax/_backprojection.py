@@ -28,12 +28,13 @@ small matrix products per frequency, the outer sum one FFT per (α, β) bin. Eac
 reads E by trilinear interpolation (8 samples) and multiplies by the exact carrier, whose
 phase k_c R₀ ~ 10⁴ rad is formed in float64 as in the exact kernel (`rift_jax.grt`).
 
-**Cost and error** (`python -m benchmarks.support --coverage` prints both; the paper's
-radar, 100 views, 51³ points): ~1.5 s against ~60 s for the exact adjoint, at a relative
-error of ~5 % (the trilinear interpolation's loss at peaks; the dropped O(s²/2r₀) term is
-≤ 0.012 rad of phase at 10 m and ≤ 0.1 rad at the 10 m scene's corner nearest an
-antenna). That is too coarse to reconstruct with, and ample to *screen*: `estimate_support`
-evaluates the exact adjoint only where this one comes within a margin of the threshold.
+**Cost and error** (`python -m benchmarks.support --target` prints both for the cube; the
+paper's radar, 100 views, 51³ points): ~1.5 s against ~60 s for the exact adjoint, at a
+relative (vector) error of ~5 %, mostly the trilinear interpolation's loss at peaks. (The
+dropped O(s²/2r₀) term is ≤ 0.012 rad of phase at 10 m and ≤ 0.1 rad at the 10 m scene's
+corner nearest an antenna.) That is too coarse to reconstruct with, and ample to *screen*:
+`estimate_support` evaluates the exact adjoint only where this one comes within a margin of
+the threshold.
 
 Applies to radars with uniform frequencies and linear arms (every `Radar`).
 """
@@ -46,7 +47,7 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Complex
+from jaxtyping import Array, Complex, Float
 
 from ._geometry import C0, Radar, Viewpoints, antenna_positions
 from ._grt import EXACT, _cis, _distances, _zeros
@@ -67,7 +68,10 @@ def _tables(radar: Radar) -> tuple[int, int]:
 
 
 def fast_backprojection(
-    signal, viewpoints: Viewpoints, points, radar: Radar
+    signal: Complex[Array, "n_views n_freq n_tx n_rx"],
+    viewpoints: Viewpoints,
+    points: Float[Array, "n_points 3"],
+    radar: Radar,
 ) -> Complex[Array, " n_points"]:
     """Σ over ``viewpoints`` of the backprojection of ``signal`` onto ``points``, ≈ Aᴴy
     within ~5 % (see the module's docstring), in ~1/40 of the exact adjoint's time at the
@@ -125,7 +129,8 @@ def _backproject(
         return jnp.concatenate([e, e[:1]]).reshape(-1)  # a wrapped row: i + 1 never wraps
 
     def arm(antennas):
-        """(centre, unit direction) of a linear arm, float64; any direction for one element."""
+        """(centre, unit direction) of a linear arm, float64. One element has no direction
+        (zeros: α = 0, where its one-element steering is 1 anyway)."""
         middle = jnp.mean(antennas, axis=0)
         if antennas.shape[0] == 1:
             return middle, jnp.zeros(3, antennas.dtype)
@@ -137,7 +142,9 @@ def _backproject(
         with jax.enable_x64(True):
             x = to_float64(chunk)
             r_t, r_r = _distances(chunk, c_t[None])[0], _distances(chunk, c_r[None])[0]
-            alpha, beta = ((x - c_t) @ u_t) / r_t, ((x - c_r) @ u_r) / r_r
+            # elementwise, as `_distances`: a size-3 contraction is no matrix product
+            alpha = jnp.sum((x - c_t) * u_t, axis=1) / r_t
+            beta = jnp.sum((x - c_r) * u_r, axis=1) / r_r
             along = jnp.mod((r_t + r_r) * per_metre, n_range).astype(jnp.float32)
             carrier = _cis(k_c, r_t + r_r, jnp.float32)
             amplitude = (0.25 / (r_t * r_r)).astype(jnp.float32) if radar.near_field else 1.0

@@ -201,9 +201,10 @@ def fit(
       operator is `grt_operator` on the support's points only, so every method's cost
       falls with it; ρ = 0 elsewhere. Afterwards
       ``stats["support_leak"]`` is the largest backprojection |Aᴴr| of the data residual r
-      *outside* the support, relative to the data's peak backprojection on it (one adjoint
-      pass over the whole grid, from at most 100 of the viewpoints, evenly spread; its
-      seconds, also counted in ``seconds``, are ``stats["support_leak_seconds"]``): near 0
+      *outside* the support, relative to the data's peak backprojection on it (screened by
+      a fast backprojection of the whole grid and exact at its maximum, from at most 100
+      of the viewpoints, evenly spread; its seconds, with the other checks' and counted in
+      ``seconds``, are ``stats["support_leak_seconds"]``): near 0
       when the support holds the scene and the fit explains the data, high when it dropped
       a scatterer, and also high when the data hold what no grid point explains (noise,
       the paper's two-grid protocol). A starting `x0` is given on the whole grid.

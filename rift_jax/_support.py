@@ -44,6 +44,13 @@ from ._validation import (
     check_positive_int,
 )
 
+# Where the exact backprojection runs: at fine points whose fast one reaches this fraction of
+# the threshold (relative to its own peak). The fast one's error is ~5 %; on the paper's
+# scenes every point at or above the threshold screened at ≥ 0.93 of it (cube, sphere,
+# parking lot: `python -m benchmarks.support --target` prints the cube's), so 0.6 leaves a
+# wide margin for radars and scenes not measured.
+SCREEN_MARGIN = 0.6
+
 
 def as_mask(support, grid: Scene) -> np.ndarray:
     """A user's support (a boolean array of the grid's shape, or a `Scene` on the same grid
@@ -200,13 +207,6 @@ def estimate_support(
     return mask
 
 
-# Where the exact backprojection runs: at fine points whose fast one reaches this fraction of
-# the threshold (relative to its own peak). The fast one's error is ~5 %; on the paper's
-# scenes every point at or above the threshold screened at ≥ 0.93 of it (benchmarks/support.py
-# --coverage), so 0.6 leaves a wide margin for radars and scenes not measured.
-SCREEN_MARGIN = 0.6
-
-
 def pooled_backprojection(
     signal, viewpoints, grid, radar, oversample, max_views, *, screen: float | None = None
 ) -> np.ndarray:
@@ -223,8 +223,7 @@ def pooled_backprojection(
     if screen is None:
         candidates = np.arange(len(points))
     else:
-        fast = np.abs(np.asarray(fast_backprojection(signal, viewpoints, points, radar)))
-        candidates = np.flatnonzero(fast >= screen * fast.max())
+        candidates = screened(signal, viewpoints, points, radar, screen)
     back[candidates] = exact_backprojection(
         signal, viewpoints, points[candidates], radar, pad=screen is not None
     )
@@ -244,6 +243,21 @@ def exact_backprojection(signal, viewpoints, points, radar, *, pad: bool) -> np.
     return np.abs(np.asarray(gathered(operator.fn.adjoint(jnp.asarray(signal)))))[:n]
 
 
+def screened(signal, viewpoints, points, radar, fraction: float) -> np.ndarray:
+    """Indices of ``points``, brightest first, where `fast_backprojection` reaches
+    ``fraction`` of its own maximum: those the exact adjoint must visit. Every point, in
+    order, if the screen has nothing to say (all zero, or not finite: the exact path then
+    meets the same input and says what is wrong with it)."""
+    fast = np.abs(np.asarray(fast_backprojection(signal, viewpoints, points, radar)))
+    if not (np.all(np.isfinite(fast)) and fast.max() > 0):
+        return np.arange(len(points))
+    candidates = np.flatnonzero(fast >= fraction * fast.max())
+    return candidates[np.argsort(fast[candidates], kind="stable")[::-1]]
+
+
+# The leak check needs one maximum, not a mask: the brightest screened points hold it unless
+# hundreds come within the screen's ~5 % of each other, and 256 exact points cost ~0.1 s at
+# the paper's scale (a few % of the screen itself).
 _LARGEST_CANDIDATES = 256
 
 
@@ -252,13 +266,10 @@ def largest_backprojection(signal, viewpoints, points, radar) -> float:
     at the points where `fast_backprojection` reaches ``SCREEN_MARGIN`` of its own maximum,
     at most the `_LARGEST_CANDIDATES` brightest of them. Exact wherever the maximum stands
     out of the backprojection (tested); where hundreds of points come within ~5 % of it (a
-    residual like noise), the brightest ones screened are among them, so the value is
-    within the screen's error."""
-    fast = np.abs(np.asarray(fast_backprojection(signal, viewpoints, points, radar)))
-    if fast.max() == 0:
-        return 0.0
-    candidates = np.flatnonzero(fast >= SCREEN_MARGIN * fast.max())
-    candidates = candidates[np.argsort(fast[candidates])[::-1][:_LARGEST_CANDIDATES]]
+    residual like noise), it is the largest of the brightest ones screened, within the
+    screen's error of the maximum."""
+    candidates = screened(signal, viewpoints, points, radar, SCREEN_MARGIN)
+    candidates = candidates[:_LARGEST_CANDIDATES]
     exact = exact_backprojection(signal, viewpoints, points[candidates], radar, pad=True)
     return float(exact.max())
 

@@ -70,11 +70,46 @@ def test_quick_scale_numbers_are_finite_and_in_range(quick_run):
             assert f"{row['scene']}**, {row['run']}: " in text
     elif name == "stability":
         check_stability_counts(out)
+        check_shared_supports(results)
     elif name == "mismatch":
         check_mismatch_cells(results)
     else:
         scene = results["rows"][0]["scene"]
         assert f"| {scene} | RIFT(N)-10 beats LS-10 | " in text
+
+
+def check_shared_supports(results):
+    """``support="auto"`` is estimated once per dataset: in each cell (same scene, views and
+    noise, and the noise's seed) one run estimates it, the others reuse it and run on as
+    many points, and every run's ``fit_seconds`` counts the estimate."""
+    cells = {}
+    for row in results["rows"]:
+        snr_db = row["options"].get("snr_db")
+        cell = (row["scene"], row["n_train"], snr_db, row["seed"] if snr_db is not None else None)
+        cells.setdefault(cell, []).append(row)
+    assert len(cells) < len(results["rows"])  # some data are shared
+    for rows in cells.values():
+        assert [row["support_reused"] for row in rows].count(False) == 1
+        assert len({row["points"] for row in rows}) == 1
+        assert all(row["fit_seconds"] > row["support_seconds"] > 0 for row in rows)
+
+
+def test_shared_support_is_the_one_fit_estimates(small_cube):
+    """The runner's shared estimate is `fit`'s own ``support="auto"`` on the same data:
+    noisy signals, synthesised with the run's noise and seed."""
+    radar, scene, train, _ = small_cube
+    shared = runner.SharedSupports(radar)
+    options = {"snr_db": 0.0}
+    estimate = shared.get("cube", scene, train, 0.5, 3, options)
+    again = shared.get("cube", scene, train, 0.5, 3, options)
+    assert not estimate.reused and again.reused and again.mask is estimate.mask
+    result = rj.fit(
+        scene, train, radar=radar, method="lsmr", granularity=0.5, iterations=1, seed=3,
+        snr_db=0.0, progress=False,
+    )  # fmt: skip
+    np.testing.assert_array_equal(estimate.mask, result.support)
+    other_noise = shared.get("cube", scene, train, 0.5, 4, options)
+    assert not other_noise.reused
 
 
 def test_resume_repeats_nothing_and_checks_the_config(quick_run, monkeypatch):
@@ -148,6 +183,9 @@ def test_resume_keeps_runs_from_before_the_experiment_gained_settings(
     asked = []
 
     def record(scene, train, test, *, method, options, **kwargs):
+        # support="auto" reaches fit as the mask estimated once for the run's data
+        if isinstance(options.get("support"), np.ndarray):
+            options = options | {"support": "auto"}
         asked.append((method, len(train), json.loads(json.dumps(options))))
         raise Asked  # stop before the run: its fit is not the point
 

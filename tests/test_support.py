@@ -10,7 +10,7 @@ import rift_jax as rj
 import rift_jax._fit
 from rift_jax._geometry import spread
 from rift_jax._scenes import _scene_from_boxes
-from rift_jax._support import mask_at
+from rift_jax._support import ladder_size, mask_at
 
 
 @pytest.fixture(scope="module")
@@ -227,3 +227,10 @@ def test_bad_estimate_support_input(small_cube):
         rj.estimate_support(signal[:-1], train, grid, radar=radar)
     with pytest.raises(ValueError, match="zero"):
         rj.estimate_support(np.zeros_like(signal), train, grid, radar=radar)
+
+
+def test_ladder_size_pads_by_at_most_a_quarter_with_four_sizes_per_octave():
+    sizes = [ladder_size(n) for n in range(1, 4097)]
+    assert all(n <= size <= max(1.25 * n, 4) for n, size in enumerate(sizes, 1))
+    assert sizes == sorted(sizes) and ladder_size(1025) == 1280 and ladder_size(1024) == 1024
+    assert len(set(sizes[1024:])) == 4 * 2  # 1025..4096: two octaves
