@@ -26,13 +26,7 @@ from ._operator import grt_operator
 from ._scenes import Scene, grid_size, nesting_granularities, shared_fraction
 from ._sharding import gathered
 from ._solvers import Diverged, History, Stop
-from ._support import (
-    as_mask,
-    estimate_support,
-    largest_backprojection,
-    mask_at,
-    voxels_holding,
-)
+from ._support import Support, as_mask, estimate_support, mask_at, voxels_holding
 from ._synthesis import PointScatterers, RadarData, synthesize
 from ._validation import check_finite, check_instance, check_nonnegative_int, check_positive
 
@@ -199,7 +193,9 @@ def fit(
       every grid point (the paper's setting). A boolean mask of the grid's shape, or a
       `Scene` on the same grid (its non-zero voxels): only those. The
       operator is `grt_operator` on the support's points only, so every method's cost
-      falls with it; ρ = 0 elsewhere. Afterwards
+      falls with it; ρ = 0 elsewhere. Their count is padded to a shared size with points
+      that hold ρ = 0 (`rift_jax._support.Support`), so that fits on supports of about the
+      same size reuse compiled programs; the answer is the unpadded one. Afterwards
       ``stats["support_leak"]`` is the largest backprojection |Aᴴr| of the data residual r
       *outside* the support, relative to the data's peak backprojection on it (screened by
       a fast backprojection of the whole grid and exact at its maximum, from at most 100
@@ -276,8 +272,9 @@ def fit(
             support = estimate_support(signal, viewpoints, grid, radar=radar)
             support_stats["support_seconds"] = time.perf_counter() - estimating
     mask = None if support is None else as_mask(support, grid)
-    if mask is not None:
-        operator = grt_operator(radar, viewpoints, points[mask.ravel()])
+    on = None if mask is None else Support.padded(mask)  # the operator's points
+    if on is not None:
+        operator = on.operator(radar, viewpoints, points)
     if "seed" in accepted:
         options = {"seed": seed, **options}
     solver_options = options
@@ -302,13 +299,13 @@ def fit(
             if mask is not None:
                 keep = mask_at(mask, grid, candidates)
             solver_options["fine_points"] = candidates[keep]
-    if mask is not None and options.get("x0") is not None:  # a start on the whole grid
+    if on is not None and options.get("x0") is not None:  # a start on the whole grid
         x0 = np.asarray(options["x0"]).reshape(-1)
         if x0.shape != (mask.size,):
             raise ValueError(
                 f"fit: `x0` must have one value per grid point ({mask.size}), got {x0.shape}."
             )
-        solver_options = {**solver_options, "x0": x0[mask.ravel()]}
+        solver_options = {**solver_options, "x0": on.restrict(x0)}
 
     if monitor is not None and not callable(monitor):
         raise ValueError(f"fit: `monitor` must be callable, got {type(monitor).__name__}.")
@@ -323,9 +320,8 @@ def fit(
                     rho = np.where(mask.ravel(), rho, 0)
             else:
                 rho = np.asarray(current) * scale
-                if mask is not None:
-                    rho, kept = np.zeros(mask.size, rho.dtype), rho
-                    rho[mask.ravel()] = kept
+                if on is not None:
+                    rho = on.embed(rho)
             values = jnp.asarray(rho.reshape(grid.shape), jnp.complex64)
             return Scene(values, extent, granularity)
 
@@ -344,9 +340,8 @@ def fit(
     def result(solution) -> FitResult:
         rho = np.asarray(solution.rho) * scale
         stats = dict(solution.stats)
-        if mask is not None:  # ρ = 0 outside the support
-            rho, active = np.zeros(mask.size, rho.dtype), rho
-            rho[mask.ravel()] = active
+        if on is not None:  # ρ = 0 outside the support
+            rho = on.embed(rho)
         field = None if solution.field is None else solution.field.scaled(scale)
         trained = None
         if fine is not None and "active" in stats:  # the field where it was trained
@@ -356,15 +351,14 @@ def fit(
             trained = Scene(jnp.asarray(values.reshape(fine.shape)), extent, fine.granularity)
             # on the inverse grid too, ρ = 0 in voxels that hold no trained point
             rho = np.where(voxels_holding(grid, candidates[where]).ravel(), rho, 0)
-        kept = jnp.asarray(rho if mask is None else rho[mask.ravel()]) / scale  # solver's units
+        kept = jnp.asarray(rho if on is None else on.restrict(rho)) / scale  # solver's units
         checked = time.perf_counter()
-        outside = None if mask is None else points[~mask.ravel()]
-        checks = _check(operator, signal, kept, outside, viewpoints)
+        checks = _check(operator, signal, kept, on, points, viewpoints)
         check_seconds = time.perf_counter() - checked
         stats |= checks
-        if mask is not None:
+        if on is not None:
             stats |= {
-                "support_points": int(mask.sum()),
+                "support_points": on.n_points,
                 "support_leak_seconds": check_seconds,
                 **support_stats,
             }
@@ -397,7 +391,7 @@ _LEAK_VIEWS = 100  # as many as `estimate_support` backprojects by default
 _COHERENCE = 0.8  # cos(|ρ|, |Aᴴy|) below this: a RIFT field unlike the data (a smooth blob)
 
 
-def _check(operator, signal, rho, outside, viewpoints) -> dict[str, float]:
+def _check(operator, signal, rho, on: Support | None, points, viewpoints) -> dict[str, float]:
     """How well the returned ρ (on the operator's points, in the solver's units) explains
     the data, from at most `_LEAK_VIEWS` viewpoints spread over the training set, so that a
     1000-view fit does not pay minutes for a diagnostic (on the paper's 0.4 m grid each 100
@@ -407,10 +401,10 @@ def _check(operator, signal, rho, outside, viewpoints) -> dict[str, float]:
     - ``coherence``: cos(|ρ|, |Aᴴy|) over the operator's points. A reconstruction follows
       the data's backprojection (≥ 0.96 for every run and for the truth in the default simple
       scenes); RIFT(N)'s smooth-blob collapse scored 0.59-0.60 there (docs/experiments.md);
-    - ``support_leak`` (with a support; ``outside`` holds the grid's other points): max
+    - ``support_leak`` (with a support ``on``; ``points`` are the whole grid's): max
       outside the support of |Aᴴ(y − A_S ρ)|, over max on it of |A_Sᴴ y|: near the level of
       a scatterer the support left out, low when the fit explains what the data backproject
-      outside (`rift_jax._support.largest_backprojection`: screened, exact at its maximum).
+      outside (`Support.leak`: screened, exact at its maximum).
     """
     rows = jnp.asarray(spread(operator.fn.n_views, _LEAK_VIEWS))
     signal = jnp.asarray(signal)[rows]
@@ -424,12 +418,12 @@ def _check(operator, signal, rho, outside, viewpoints) -> dict[str, float]:
         "data_residual": float(jnp.linalg.norm(residual)) / norm if norm > 0 else 0.0,
         "coherence": float(magnitude @ back) / scale if scale > 0 else 0.0,
     }
-    if outside is None:
+    if on is None:
         return out
     leak = 0.0
-    if len(outside) and (peak := back.max()) > 0:
+    if (peak := back.max()) > 0:
         views = viewpoints[np.asarray(rows)]
-        leak = largest_backprojection(residual, views, outside, operator.fn.radar) / float(peak)
+        leak = on.leak(residual, views, points, operator.fn.radar) / float(peak)
     return out | {"support_leak": leak}
 
 

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import lineax as lx
 import numpy as np
-from jaxtyping import Array, Complex, Float, Int
+from jaxtyping import Array, Bool, Complex, Float, Int
 
 from . import _grt
 from ._geometry import Radar, Viewpoints, antenna_positions
@@ -49,6 +49,12 @@ class GRT(eqx.Module):
     Viewpoint angles and points are array leaves held as float32 (hi, lo) pairs, so they keep
     float64 precision without x64 (`rift_jax._precision`); distances and phases are computed
     in float64, see `rift_jax.grt`.
+
+    ``live`` (None: every point) marks the points that exist: the GRT is then A·diag(live),
+    whose other columns are zero, so ρ there changes no signal and gets no backprojection.
+    The others are padding (`grt_operator`'s ``pad_to``): a problem padded to a size shared
+    with others reuses their compiled programs, and every solver's answer on the live
+    points is the unpadded one.
     """
 
     radar: Radar = eqx.field(static=True)
@@ -56,6 +62,7 @@ class GRT(eqx.Module):
     polar: Float64Pair
     points: Float64Pair
     chunk_size: int | None = eqx.field(static=True, default=None)
+    live: Bool[Array, " n_points"] | None = None
 
     @property
     def n_views(self) -> int:
@@ -74,6 +81,15 @@ class GRT(eqx.Module):
             tx, rx = antenna_positions(self.radar, to_float64(azimuth), to_float64(polar))
         return self.points, tx, rx, self.radar.frequencies
 
+    def on(self, points: Float64Pair, live: Bool[Array, " k"] | None = None) -> GRT:
+        """The same radar and viewpoints on other ``points`` (a float32 pair, see
+        `rift_jax._precision.split`), of which ``live`` exist (None: all)."""
+        return GRT(self.radar, self.azimuth, self.polar, points, self.chunk_size, live)
+
+    def _masked(self, x: Complex[Array, " n_points"]) -> Complex[Array, " n_points"]:
+        """``x`` zero at the points that are not live: diag(live) x."""
+        return x if self.live is None else jnp.where(self.live, x, 0)
+
     def _index(self, index) -> Array:
         """``index`` checked (when concrete) and as an array, so that every view shares one
         compilation."""
@@ -90,13 +106,13 @@ class GRT(eqx.Module):
     def view(self, rho: Complex[Array, " n_points"], index) -> Complex[Array, "f m n"]:
         """The signal of viewpoint ``index`` (may be traced): one row block of the operator.
         Its voxels are split over the devices (not inside a `shard_map`)."""
-        rho = jnp.asarray(rho, jnp.complex64)
+        rho = self._masked(jnp.asarray(rho, jnp.complex64))
         return _row(self, _grt.forward_view, rho, self._index(index))
 
     def view_adjoint(self, signal: Complex[Array, "f m n"], index) -> Complex[Array, " n_points"]:
         """Backprojection of one viewpoint's signal: the adjoint of `view`."""
         signal = jnp.asarray(signal, jnp.complex64)
-        return _row(self, _grt.adjoint_view, signal, self._index(index))
+        return self._masked(_row(self, _grt.adjoint_view, signal, self._index(index)))
 
     @eqx.filter_jit
     def __call__(self, rho: Complex[Array, " n_points"]) -> Complex[Array, "v f m n"]:
@@ -104,6 +120,7 @@ class GRT(eqx.Module):
         rho = jnp.asarray(rho, jnp.complex64)
         if rho.shape != (self.n_points,):
             raise ValueError(f"GRT: `rho` must have shape ({self.n_points},), got {rho.shape}.")
+        rho = self._masked(rho)
 
         def local(azimuth, polar, rho):
             return jax.lax.map(
@@ -133,7 +150,7 @@ class GRT(eqx.Module):
             zero = _grt._zeros((self.n_points,), signal.dtype, *leaves)
             return jax.lax.scan(step, zero, (azimuth, polar, signal))[0]
 
-        return over_views(local, self.azimuth, self.polar, signal, reduce=True)
+        return self._masked(over_views(local, self.azimuth, self.polar, signal, reduce=True))
 
     def _kernel(self, kernel, data, azimuth, polar):
         """``kernel`` (`forward_view` or `adjoint_view`: split over voxels where that
@@ -244,6 +261,7 @@ def grt_operator(
     grid_points: Float[Array, "n_points 3"],
     *,
     chunk_size: int | None = None,
+    pad_to: int | None = None,
 ) -> GRTOperator:
     """The GRT over ``viewpoints`` as a lineax linear operator.
 
@@ -253,6 +271,9 @@ def grt_operator(
     - `viewpoints`: a `Viewpoints` (the operator's row blocks, in order).
     - `grid_points`: (V, 3) points (metres) on which ρ lives, e.g. ``Scene.points()``.
     - `chunk_size`: voxels per scan step inside the kernel (None: `rift_jax.grt` default).
+    - `pad_to`: pad the points to this many with copies of the last one that hold ρ = 0
+      (zero columns: `GRT.live`), so that problems of similar sizes share compiled
+      programs; ρ and Aᴴy then have ``pad_to`` entries, the padded ones zero in Aᴴy.
 
     **Returns:** a `GRTOperator` (a `lineax.AbstractLinearOperator`) from complex64 ρ of shape
     (V,) to signals of shape (n_views, n_freq, n_tx, n_rx). Its `.fn` is the `GRT` module (row
@@ -278,5 +299,16 @@ def grt_operator(
         )
     if chunk_size is not None:
         check_positive_int("grt_operator: `chunk_size`", chunk_size)
-    fn = GRT(radar, split(viewpoints.azimuth), split(viewpoints.polar), split(points), chunk_size)
-    return GRTOperator(fn)
+    if pad_to is not None:
+        check_positive_int("grt_operator: `pad_to`", pad_to)
+        if pad_to < len(points):
+            raise ValueError(
+                f"grt_operator: `pad_to` ({pad_to}) must be at least the number of "
+                f"`grid_points` ({len(points)})."
+            )
+    live = None
+    if pad_to is not None:  # on the host: an eager jnp.pad would compile for every size
+        live = jnp.asarray(np.arange(pad_to) < len(points))
+        points = np.pad(points, ((0, pad_to - len(points)), (0, 0)), mode="edge")
+    angles = split(viewpoints.azimuth), split(viewpoints.polar)
+    return GRTOperator(GRT(radar, *angles, split(points), chunk_size, live))

@@ -238,13 +238,13 @@ def test_check_measures_residual_and_coherence_by_hand(small_cube):
     operator = rj.grt_operator(radar, train, grid.points())
     signal = np.asarray(data.signal)
     back = np.asarray(operator.fn.adjoint(signal))
-    matched = _check(operator, signal, back, None, train)
+    matched = _check(operator, signal, back, None, grid.points(), train)
     assert matched["coherence"] == pytest.approx(1.0, abs=1e-5)
     residual = signal - np.asarray(operator.fn(back))
     assert matched["data_residual"] == pytest.approx(
         np.linalg.norm(residual) / np.linalg.norm(signal), rel=1e-4
     )
-    flat = _check(operator, signal, np.ones_like(back), None, train)
+    flat = _check(operator, signal, np.ones_like(back), None, grid.points(), train)
     expected = np.abs(back).sum() / (np.sqrt(back.size) * np.linalg.norm(back))
     assert flat["coherence"] == pytest.approx(expected, rel=1e-4) and expected < 0.9
 

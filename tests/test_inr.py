@@ -356,7 +356,7 @@ def test_a_padded_active_set_trains_as_the_set_itself(small_cube):
     candidates = _Candidates(operator.fn, scene.points().astype(np.float64))
     active = np.sort(np.random.default_rng(0).choice(729, 50, replace=False))
     padded = candidates.restricted(active)
-    assert padded.n_points == 56 and int(padded.live.sum()) == 50
+    assert padded.n_points == 56 and int(padded.fn.live.sum()) == 50
     assert candidates.restricted(active[:40], padded).n_points == 56  # fits, 2/3 full
     assert candidates.restricted(active[:30], padded).n_points == 32  # under 2/3: shrinks
     assert candidates.restricted(np.arange(720), padded).n_points == 729  # at most all

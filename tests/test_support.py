@@ -2,15 +2,18 @@
 contains, every method takes one, a support that drops part of the scene is reported, and
 `estimate_support` ("auto") keeps every true voxel of scenes it was and was not tuned on."""
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.ndimage
+from conftest import compilations, relative_error
 
 import rift_jax as rj
 import rift_jax._fit
 from rift_jax._geometry import spread
+from rift_jax._padding import ladder_size
 from rift_jax._scenes import _scene_from_boxes
-from rift_jax._support import ladder_size, mask_at
+from rift_jax._support import Support, mask_at
 
 
 @pytest.fixture(scope="module")
@@ -234,3 +237,91 @@ def test_ladder_size_pads_by_at_most_a_quarter_with_four_sizes_per_octave():
     assert all(n <= size <= max(1.25 * n, 4) for n, size in enumerate(sizes, 1))
     assert sizes == sorted(sizes) and ladder_size(1025) == 1280 and ladder_size(1024) == 1024
     assert len(set(sizes[1024:])) == 4 * 2  # 1025..4096: two octaves
+
+
+def test_ladder_size_with_eight_sizes_per_octave_pads_by_at_most_an_eighth():
+    sizes = [ladder_size(n, 8) for n in range(1, 4097)]
+    assert all(n <= size <= max(1.125 * n, 8) for n, size in enumerate(sizes, 1))
+    assert ladder_size(1025, 8) == 1152 and ladder_size(3059, 8) == 3072
+    assert len(set(sizes[1024:])) == 8 * 2
+    with pytest.raises(ValueError, match="per_octave"):
+        ladder_size(10, 3)
+
+
+def test_a_padded_operator_is_the_operator_with_zero_columns(small_radar, rng):
+    """`pad_to` appends copies of the last point that are not live: A·diag(live), whose
+    padded columns are zero in every product and in the adjoint."""
+    viewpoints = rj.Viewpoints.grid(3, 1)  # 3 views over 2 devices: view padding too
+    points = rng.uniform(-1, 1, (9, 3))
+    plain = rj.grt_operator(small_radar, viewpoints, points)
+    padded = rj.grt_operator(small_radar, viewpoints, points, pad_to=12)
+    assert padded.in_structure().shape == (12,) and int(padded.fn.live.sum()) == 9
+    matrix = np.asarray(padded.as_matrix())
+    np.testing.assert_allclose(matrix[:, :9], np.asarray(plain.as_matrix()), rtol=1e-6, atol=0)
+    assert not np.any(matrix[:, 9:])
+    signal = np.asarray(plain.mv(jnp.asarray(rng.normal(size=9) + 0j, jnp.complex64)))
+    back = np.asarray(padded.fn.adjoint(jnp.asarray(signal)))
+    assert not np.any(back[9:])
+    assert not np.any(np.asarray(padded.fn.view_adjoint(signal[1], 1))[9:])
+    np.testing.assert_allclose(back[:9], np.asarray(plain.fn.adjoint(signal)), rtol=1e-5)
+    with pytest.raises(ValueError, match="pad_to"):
+        rj.grt_operator(small_radar, viewpoints, points, pad_to=8)
+
+
+@pytest.mark.parametrize("method", ["lsmr", "fista", "kaczmarz", "gauss-newton"])
+def test_every_solver_on_a_padded_operator_gives_the_unpadded_answer(method, small_cube):
+    """The fast path (a support padded to a shared size) against the plain one: the same ρ
+    on the support's points, within float32, whatever a start holds on the padding (ρ
+    there counts as 0; `fit` drops it)."""
+    radar, scene, train, _ = small_cube
+    signal = rj.synthesize(scene, train, radar).signal
+    points = scene.points()[np.asarray(scene.reflectivity).ravel() != 0]
+    points = np.concatenate([points, scene.points()[:40]])  # some empty voxels too
+    plain = rj.grt_operator(radar, train, points)
+    padded = rj.grt_operator(radar, train, points, pad_to=len(points) + 11)
+    solver = getattr(rj.solvers, method.replace("-", "_"))
+    a = solver(plain, signal, progress=False, tol=0, iterations=20)
+    start = np.zeros(len(points) + 11, np.complex64)
+    start[len(points) :] = 1.0  # not live: must neither move nor count
+    b = solver(padded, signal, progress=False, tol=0, iterations=20, x0=start)
+    assert relative_error(np.asarray(b.rho)[: len(points)], np.asarray(a.rho)) < 1e-5
+    np.testing.assert_allclose(b.history.residual, a.history.residual, rtol=1e-4, atol=1e-7)
+
+
+def test_fit_on_a_padded_support_gives_the_unpadded_fit(small_cube, around_the_cube, monkeypatch):
+    """`fit` pads a support to `Support.size`; with the padding taken away (every support
+    its own size) the reconstruction and its checks are the same."""
+    radar, scene, train, _ = small_cube
+    common = dict(radar=radar, method="fista", granularity=0.5, progress=False, tol=0)
+    common |= dict(support=around_the_cube, iterations=30)
+    padded = rj.fit(scene, train, **common)
+    assert Support.padded(padded.support).size == 88 > padded.stats["support_points"] == 81
+    monkeypatch.setattr(
+        Support, "padded", classmethod(lambda cls, mask: cls(mask, int(mask.sum())))
+    )
+    plain = rj.fit(scene, train, **common)
+    assert relative_error(padded.scene.reflectivity, plain.scene.reflectivity) < 1e-5
+    assert not np.any(np.asarray(padded.scene.reflectivity)[~padded.support])
+    for key in ("data_residual", "coherence", "support_leak"):
+        assert padded.stats[key] == pytest.approx(plain.stats[key], rel=1e-4, abs=1e-6), key
+
+
+def test_supports_of_nearby_sizes_share_the_compiled_steps(small_cube, caplog):
+    """Two fits whose supports differ in size but share a ladder rung, on different data
+    (so FISTA's step 1/L differs too), compile FISTA's and LSMR's steps once."""
+    radar, scene, train, _ = small_cube
+    grid = rj.Scene.empty(scene.extent, 0.5)
+    first = np.zeros(grid.shape, bool)
+    first[2:6, 2:6, 2:6] = True
+    first[6, 2, 2:4] = True  # 66 points: padded to 72
+    second = first.copy()
+    second[6, 3:5, 2:5] = True  # 72 points
+    assert Support.padded(first).size == Support.padded(second).size == 72
+    other = rj.scenes.cube(0.5, extent=2.0, edge=0.5)
+    for method, step in (("fista", "_update"), ("lsmr", "_segment")):
+        common = dict(radar=radar, method=method, granularity=0.5, progress=False)
+        rj.fit(scene, train, support=first, **common)
+        again = compilations(
+            caplog, lambda common=common: rj.fit(other, train, support=second, **common).scene
+        )
+        assert not [m for m in again if m.startswith(f"Compiling jit({step})")], method

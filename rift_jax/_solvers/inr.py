@@ -34,6 +34,7 @@ from .._geometry import spread
 from .._losses import LOSSES
 from .._models import MODELS, AbstractINR, Field
 from .._operator import GRT, GRTOperator
+from .._padding import ladder_size
 from .._precision import exact_jit, split, to_float64
 from .._sharding import replicated
 from .._validation import (
@@ -453,7 +454,7 @@ def _train(
         best = eqx.combine(best_params, static)
         history = History(np.asarray(residuals), np.asarray(seconds), np.asarray(losses))
         trained_on, trained_active, fine = best_set
-        trained = np.ones(len(trained_on.points), bool)
+        trained = trained_on.live.copy()
         if trained_active is not None:
             trained[:] = False
             trained[trained_active] = True
@@ -486,7 +487,7 @@ def _train(
             epoch_start = time.perf_counter()
             current = eqx.combine(params, static)
             if epoch == switch:  # coarse to fine: same parameters and optimizer state
-                fine_fn = eqx.tree_at(lambda g: g.points, fn, split(fine_points))
+                fine_fn = fn.on(split(fine_points))
                 candidates = _Candidates(fine_fn, fine_points)
                 active = None if recipe.prune is None else candidates.select(current, recipe.prune)
                 step_points = candidates.restricted(active)
@@ -588,6 +589,9 @@ class _Candidates:
 
     def __init__(self, fn: GRT, points: np.ndarray):  # points: fn's, in float64
         self.fn, self.points = fn, points
+        # the points that exist: an operator padded to a shared size (`grt_operator`'s
+        # pad_to) holds copies of one of them, which must never join an active set
+        self.live = np.ones(len(points), bool) if fn.live is None else np.asarray(fn.live)
         self.coords = jnp.asarray(points, jnp.float32)
         self.tree = scipy.spatial.cKDTree(points)
         if len(points) > 1:  # neighbours: within √3 spacings (the 26 around a grid point)
@@ -598,12 +602,13 @@ class _Candidates:
             self.radius = 0.0
 
     def select(self, field: Field, prune: float) -> np.ndarray:
-        """The sorted indices of the points where |ρ| ≥ prune · max |ρ|, and their
-        neighbours."""
-        magnitude = np.abs(np.asarray(field.render(self.coords)))
-        seeds = np.flatnonzero(magnitude >= prune * magnitude.max())
+        """The sorted indices of the live points where |ρ| ≥ prune · max |ρ|, and their
+        live neighbours."""
+        magnitude = np.where(self.live, np.abs(np.asarray(field.render(self.coords))), 0)
+        seeds = np.flatnonzero(self.live & (magnitude >= prune * magnitude.max()))
         near = self.tree.query_ball_point(self.points[seeds], self.radius, return_sorted=False)
-        return np.unique(np.concatenate([seeds, *map(np.asarray, near)]).astype(np.int64))
+        chosen = np.unique(np.concatenate([seeds, *map(np.asarray, near)]).astype(np.int64))
+        return chosen[self.live[chosen]]
 
     def restricted(
         self, active: np.ndarray | None, current: _StepPoints | None = None
@@ -615,45 +620,35 @@ class _Candidates:
         epoch, against ~0.8 s for an epoch that compiles nothing (measured). ``current``'s
         size is kept while the set fits in it and fills at least two thirds of it (each
         step's cost follows the padded size); otherwise the set gets the next size of a
-        ladder growing ~1.25x (`_padded_size`). Padding repeats the first active point with
-        ρ = 0, so it adds nothing to the signals or gradients."""
+        ladder growing ~1.25x (`rift_jax._padding.ladder_size`). Padding repeats the first
+        active point, not live (`GRT.live`: ρ = 0 there), so it adds nothing to the signals
+        or gradients."""
         if active is None:
             return replicated(_StepPoints(self.fn, self.coords))
         n, limit = len(active), len(self.points)
         size = None if current is None else current.n_points
         if size is None or not n <= size <= 1.5 * n:
-            size = min(_padded_size(n), limit)
+            size = min(ladder_size(n), limit)
         index = np.concatenate([active, np.full(size - n, active[0])])
-        fn = eqx.tree_at(
-            lambda g: g.points, self.fn, jax.tree.map(lambda a: a[index], self.fn.points)
-        )
         live = np.arange(size) < n
-        return replicated(_StepPoints(fn, self.coords[index], None if live.all() else live))
-
-
-def _padded_size(n: int) -> int:
-    """The smallest size ⌈16·1.25^k⌉ (rounded up to a multiple of 8) holding n points."""
-    size = 16.0
-    while math.ceil(size / 8) * 8 < n:
-        size *= 1.25
-    return math.ceil(size / 8) * 8
+        points = jax.tree.map(lambda a: a[index], self.fn.points)
+        fn = self.fn.on(points, None if live.all() else jnp.asarray(live))
+        return replicated(_StepPoints(fn, self.coords[index]))
 
 
 class _StepPoints(eqx.Module):
-    """What a RIFT step trains: the GRT on its points, their float32 coordinates, and which
-    of them are live (None: all; the others are padding, held at ρ = 0)."""
+    """What a RIFT step trains: the GRT on its points and their float32 coordinates (the
+    GRT's `live` marks padding, where ρ counts as 0)."""
 
     fn: GRT
     coords: Float[Array, "k 3"]
-    live: Array | None = None
 
     @property
     def n_points(self) -> int:
         return len(self.coords)
 
     def render(self, field: Field) -> Complex[Array, " k"]:
-        rho = field.render(self.coords)
-        return rho if self.live is None else jnp.where(self.live, rho, 0)
+        return field.render(self.coords)
 
 
 def _recipe(where: str, recipe, overrides) -> Recipe:

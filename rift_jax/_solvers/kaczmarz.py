@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -88,9 +87,11 @@ def kaczmarz(
     n_points, n_dev = fn.n_points, jax.device_count()
     pad = -n_points % n_dev
     points = pad_leading(fn.points, pad, "edge")
-    mask = jnp.arange(n_points + pad) < n_points  # padding voxels never move
+    # padding voxels (the devices', and any the operator's own `live` marks) never move
+    live = jnp.ones(n_points, bool) if fn.live is None else fn.live
+    mask = pad_leading(live, pad, "constant")
     # split as `_sweep` returns it: a replicated start compiled the sweep a second time
-    x = split_over_devices(pad_leading(x, pad, "constant"))
+    x = split_over_devices(jnp.where(mask, pad_leading(x, pad, "constant"), 0))
     norm = jnp.linalg.norm(signal)
     rng = np.random.default_rng(seed)
     best = {"x": x, "residual": residual_of(fn, signal, x[:n_points])}
@@ -132,7 +133,7 @@ def _sweep(fn: GRT, points, mask, x, signal, order, lam):
     n_dev = jax.device_count()
 
     def body(points, mask, x, signal, order, lam):
-        local = eqx.tree_at(lambda f: f.points, fn, points)
+        local = fn.on(points)  # `mask` stands for the operator's `live`
         total = (lambda v: jax.lax.psum(v, DEVICES)) if n_dev > 1 else (lambda v: v)
 
         def block(k, x):

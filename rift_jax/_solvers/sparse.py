@@ -79,23 +79,26 @@ def fista(
         return solution
     fn = operator.fn
     lipschitz = 1.1 * _power_norm(fn, power_iterations, seed)
-    # a traced scalar, not a Python float: a new signal must not recompile the steps
-    lam = sparsity * _max_backprojection(fn, signal)
+    # traced scalars, not Python floats, so that a new signal or operator compiles no step
+    # again. jaxopt holds its step as a static setting, so it steps by 1 on the objective
+    # scaled by t = 1/L and prox'es tλ‖·‖₁: the same iterates, x − 1·(t∇f) and a shrink by tλ
+    step_size = jnp.float32(1.0 / lipschitz)
+    lam = step_size * sparsity * _max_backprojection(fn, signal)
     norm = jnp.linalg.norm(signal)
-    solver = _solver(1.0 / lipschitz, nonnegative)
+    solver = _solver(nonnegative)
     pair = as_pair(x)
     if nonnegative:
         pair = _prox_nonnegative(pair, 0.0)
     last = {}
 
     def step(carry):
-        carry = _update(solver, *carry[:4], lam, fn, signal)
+        carry = _update(solver, *carry[:4], lam, fn, signal, step_size)
         last["pair"] = carry[0]
         return carry, relative(jnp.linalg.norm(carry[2]), norm)  # of carry[4], the iterate
 
     rho, history, stopped, stats = iterate(
         step,
-        _init(solver, pair, lam, fn, signal),
+        _init(solver, pair, lam, fn, signal, step_size),
         iterations=iterations,
         tol=tol,
         progress=progress,
@@ -111,36 +114,38 @@ def fista(
         rho, stats = final, {"best": len(history)}
     seconds = np.append(history.seconds, history.seconds[-1] + time.perf_counter() - checked)
     history = History(np.append(history.residual, residual), seconds)
-    stats |= {"lambda": float(lam), "lipschitz": lipschitz, "nonnegative": nonnegative}
+    stats |= {"lambda": float(lam / step_size), "lipschitz": lipschitz, "nonnegative": nonnegative}
     return Solution(rho, history, stopped, stats)
 
 
 @functools.cache
-def _solver(stepsize: float, nonnegative: bool) -> jaxopt.ProximalGradient:
-    """One jaxopt solver per (step, constraint), so that jit caches hit across runs."""
+def _solver(nonnegative: bool) -> jaxopt.ProximalGradient:
+    """One jaxopt solver per constraint, so that jit caches hit across runs (its step is
+    1: `_value_and_grad` scales the objective by the step t, a traced argument)."""
     return jaxopt.ProximalGradient(
         fun=_value_and_grad,
         prox=_prox_nonnegative if nonnegative else _prox_l1,
         value_and_grad=True,
         has_aux=True,
-        stepsize=stepsize,
+        stepsize=1.0,
         acceleration=True,
         jit=False,  # the caller jits the whole update
     )
 
 
-def _value_and_grad(pair, fn, signal):
-    """((½‖Aρ − y‖², Aρ − y), ∇ = Aᴴ(Aρ − y)) with the adjoint kernel."""
+def _value_and_grad(pair, fn, signal, t):
+    """((t·½‖Aρ − y‖², Aρ − y), ∇ = t·Aᴴ(Aρ − y)) with the adjoint kernel: the objective
+    scaled by the step t, so that jaxopt's unit step is t."""
     r = fn(as_complex(pair)) - signal
-    value = 0.5 * jnp.sum(jnp.abs(r) ** 2)
-    return (value, r), as_pair(fn.adjoint(r))
+    value = t * 0.5 * jnp.sum(jnp.abs(r) ** 2)
+    return (value, r), as_pair(t * fn.adjoint(r))
 
 
 @exact_jit
-def _init(solver, pair, lam, fn, signal):
+def _init(solver, pair, lam, fn, signal, step_size):
     """The carry before the first step: t_{-1} = 1 and m = 0, so FISTA's first extrapolated
     point is its start."""
-    state = solver.init_state(pair, lam, fn, signal)
+    state = solver.init_state(pair, lam, fn, signal, step_size)
     one = jnp.ones((), jnp.float32)
     return _settled((pair, state, jnp.zeros_like(signal), one, pair))
 
@@ -159,10 +164,11 @@ def _settled(carry):
 
 
 @exact_jit
-def _update(solver, pair, state, misfit, t, lam, fn, signal):
-    """One FISTA step from ρ_k (``pair``) with ``misfit`` = r(ρ_{k−1}) and ``t`` = t_{k−1}:
-    (ρ_{k+1}, state, r(ρ_k), t_k, ρ_k)."""
-    step = solver.update(pair, state, lam, fn, signal)
+def _update(solver, pair, state, misfit, t, lam, fn, signal, step_size):
+    """One FISTA step from ρ_k (``pair``) with ``misfit`` = r(ρ_{k−1}) and ``t`` = t_{k−1}
+    (the momentum's; ``step_size`` is the gradient step): (ρ_{k+1}, state, r(ρ_k), t_k,
+    ρ_k)."""
+    step = solver.update(pair, state, lam, fn, signal, step_size)
     m = (t - 1) / state.t  # y_k = ρ_k + m (ρ_k − ρ_{k−1})
     misfit = (step.state.aux + m * misfit) / (1 + m)  # aux: r(y_k)
     return _settled((step.params, step.state, misfit, state.t, pair))
@@ -188,10 +194,14 @@ def _prox_nonnegative(pair, lam, scaling=1.0):
 
 
 def _power_norm(fn, iterations: int, seed: int) -> float:
-    """‖A‖² ≈ the Rayleigh quotient ‖Av‖²/‖v‖² after power iterations on AᴴA."""
-
-    re, im = jax.random.normal(jax.random.key(seed), (2, fn.n_points))
-    return float(_power(fn, jax.lax.complex(re, im), iterations))
+    """‖A‖² ≈ the Rayleigh quotient ‖Av‖²/‖v‖² after power iterations on AᴴA, from a
+    seeded start drawn for the live points only (`GRT.live`): a padded problem starts
+    where its unpadded one does, so it finds the same step."""
+    live = np.ones(fn.n_points, bool) if fn.live is None else np.asarray(fn.live)
+    re, im = jax.random.normal(jax.random.key(seed), (2, int(live.sum())))
+    start = np.zeros(fn.n_points, np.complex64)
+    start[live] = np.asarray(jax.lax.complex(re, im))
+    return float(_power(fn, jnp.asarray(start), iterations))
 
 
 @exact_jit
