@@ -6,8 +6,8 @@ scale compiling is most of a run: a FISTA fit on a 30-view, 1,475-point support 
 the first time and 1.7 s once its programs were compiled, LSMR 8.9 s and 2.2 s, RIFT(N)
 25 s and 9.6 s (2-core CPU). Padding a count up to the next size of a ladder lets runs whose
 counts differ a little share one program, for at most ``1/per_octave`` more arithmetic.
-The padded points are copies of a real one that hold ρ = 0 (`GRT.padded`), so they change
-no result.
+The padded points are copies of a real one that hold ρ = 0 (`GRT.live`; `grt_operator`'s
+``pad_to``), so they change no result.
 """
 
 from __future__ import annotations

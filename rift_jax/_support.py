@@ -95,7 +95,7 @@ def as_mask(support, grid: Scene) -> np.ndarray:
 SUPPORT_SIZES_PER_OCTAVE = 8
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)  # an array field: no value equality
 class Support:
     """Where a reconstruction lives: the grid points a mask keeps, as an operator sees them.
 
@@ -311,6 +311,8 @@ def screened(signal, viewpoints, points, radar, fraction: float, where=None) -> 
     exact adjoint must visit. Every such point, in order, if the screen has nothing to say
     (all zero, or not finite: the exact path then meets the same input and says what is
     wrong with it)."""
+    if where is not None and not np.any(where):
+        raise ValueError("screened: `where` marks no point to screen.")
     fast = np.abs(np.asarray(fast_backprojection(signal, viewpoints, points, radar)))
     if where is not None:
         fast = np.where(where, fast, 0)

@@ -263,6 +263,9 @@ def test_a_padded_operator_is_the_operator_with_zero_columns(small_radar, rng):
     back = np.asarray(padded.fn.adjoint(jnp.asarray(signal)))
     assert not np.any(back[9:])
     assert not np.any(np.asarray(padded.fn.view_adjoint(signal[1], 1))[9:])
+    on_padding = jnp.zeros(12, jnp.complex64).at[9:].set(1.0)
+    assert not np.any(np.asarray(padded.fn.view(on_padding, 1)))
+    assert not np.any(np.asarray(padded.mv(on_padding)))
     np.testing.assert_allclose(back[:9], np.asarray(plain.fn.adjoint(signal)), rtol=1e-5)
     with pytest.raises(ValueError, match="pad_to"):
         rj.grt_operator(small_radar, viewpoints, points, pad_to=8)
@@ -307,8 +310,8 @@ def test_fit_on_a_padded_support_gives_the_unpadded_fit(small_cube, around_the_c
 
 
 def test_supports_of_nearby_sizes_share_the_compiled_steps(small_cube, caplog):
-    """Two fits whose supports differ in size but share a ladder rung, on different data
-    (so FISTA's step 1/L differs too), compile FISTA's and LSMR's steps once."""
+    """Two fits whose supports differ in size but share a ladder rung (so FISTA's step
+    1/L, which follows the operator, differs too), compile FISTA's and LSMR's steps once."""
     radar, scene, train, _ = small_cube
     grid = rj.Scene.empty(scene.extent, 0.5)
     first = np.zeros(grid.shape, bool)
@@ -320,8 +323,30 @@ def test_supports_of_nearby_sizes_share_the_compiled_steps(small_cube, caplog):
     other = rj.scenes.cube(0.5, extent=2.0, edge=0.5)
     for method, step in (("fista", "_update"), ("lsmr", "_segment")):
         common = dict(radar=radar, method=method, granularity=0.5, progress=False)
-        rj.fit(scene, train, support=first, **common)
+        once = compilations(
+            caplog, lambda common=common: rj.fit(scene, train, support=first, **common).scene
+        )
+        assert [m for m in once if m.startswith(f"Compiling jit({step})")], method
         again = compilations(
             caplog, lambda common=common: rj.fit(other, train, support=second, **common).scene
         )
         assert not [m for m in again if m.startswith(f"Compiling jit({step})")], method
+
+
+@pytest.mark.filterwarnings("ignore::rift_jax.solvers.CollapseWarning")
+def test_rift_on_a_padded_operator_trains_and_returns_only_the_live_points(small_cube):
+    """RIFT on a padded operator: ρ = 0 on the padding (also where every point trains), no
+    padded point joins an active set or its count, and the collapse check reads the live
+    points only."""
+    radar, scene, train, _ = small_cube
+    signal = rj.synthesize(scene, train, radar).signal
+    points = scene.points()[np.asarray(scene.reflectivity).ravel() != 0]
+    n = len(points)
+    padded = rj.grt_operator(radar, train, points, pad_to=n + 11)
+    for prune in (None, 0.5):
+        result = rj.solvers.rift(
+            padded, signal, epochs=4, prune=prune, recheck_every=2, retries=0, progress=False
+        )
+        assert not np.any(np.asarray(result.rho)[n:]), prune
+        assert 0 < result.stats["active_points"] <= n
+        assert prune is not None or result.stats["active_points"] == n

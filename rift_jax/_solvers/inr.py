@@ -345,7 +345,10 @@ def _check_collapse(solution: Solution, fn: GRT, signal, *, warm: bool) -> str |
     index = spread(fn.n_views, 10)
     energy = float(_energy_ratio(*replicated((fn, solution.rho, signal, jnp.asarray(index)))))
     gain_ratio = float(abs(solution.field.gain)) / solution.stats["initial_gain"]
-    return diagnose(solution.history.loss, solution.rho, energy, gain_ratio, warm=warm)
+    rho = np.asarray(solution.rho)
+    if fn.live is not None:  # the points that exist: padding must not move mean or spread
+        rho = rho[np.asarray(fn.live)]
+    return diagnose(solution.history.loss, rho, energy, gain_ratio, warm=warm)
 
 
 @exact_jit
@@ -476,6 +479,8 @@ def _train(
             stats |= {"fine_from_epoch": switch, "active": trained}
         elif trained_active is not None:  # what was trained: the field on its active set
             rho = jnp.where(jnp.asarray(trained), rho, 0)
+        if fn.live is not None:  # ρ = 0 on an operator's padding, as on any other solver's
+            rho = jnp.where(fn.live, rho, 0)
         return Solution(rho, history, stopped, stats, field=best)
 
     start = time.perf_counter()
