@@ -8,8 +8,11 @@ import dataclasses
 import json
 import math
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import compilations
 
 import rift_jax as rj
 from experiments import complex_scenes, mismatch, runner, simple_scenes, stability, weak_target
@@ -459,3 +462,15 @@ def check_mismatch_cells(results):
     spread = np.asarray(points.resample(cfg.resolutions[0]).reflectivity)
     total = complex(np.sum(np.asarray(points.reflectivity)))
     assert complex(np.sum(spread)) == pytest.approx(total, rel=1e-5)
+
+
+def test_release_compiled_programs_drops_them_near_the_mapping_limit(caplog):
+    """A long study drops JAX's compiled programs once its memory mappings near the
+    kernel's limit (LLVM then fails to compile): past the share it clears, and a program
+    compiles again; below it nothing is dropped."""
+    twice = jax.jit(lambda x: 2 * x + 1)
+    twice(jnp.ones(3))
+    assert not runner.release_compiled_programs(share=1e9)
+    assert compilations(caplog, lambda: twice(jnp.ones(3))) == []
+    assert runner.release_compiled_programs(share=0.0)
+    assert compilations(caplog, lambda: twice(jnp.ones(3)))
