@@ -444,7 +444,7 @@ def versions() -> dict:
 def release_compiled_programs(share: float = 0.5) -> bool:
     """Drop JAX's compiled programs (`jax.clear_caches`) once this process's memory mappings
     pass ``share`` of the kernel's limit; returns whether it did. Each XLA:CPU program holds
-    mappings of its own (a stress-grid fit compiled 400-1,500, measured), and a study compiles
+    mappings of its own (a stress-grid fit compiled 700-1,500, measured), and a study compiles
     hundreds of programs (every view count, support size and RIFT active set): at
     `vm.max_map_count` (65,530 here) LLVM fails with "Cannot allocate memory" although RAM is
     free, which stopped the stress grid twice, after 135 and 110 runs. Dropping them costs
