@@ -86,7 +86,12 @@ class GRT(eqx.Module):
         `rift_jax._precision.split`), of which ``live`` exist (None: all)."""
         return GRT(self.radar, self.azimuth, self.polar, points, self.chunk_size, live)
 
-    def _masked(self, x: Complex[Array, " n_points"]) -> Complex[Array, " n_points"]:
+    def live_points(self) -> np.ndarray:
+        """Which points exist, as a boolean NumPy array (all of them without padding), for
+        host-side work such as choosing among them; concrete `live` only."""
+        return np.ones(self.n_points, bool) if self.live is None else np.asarray(self.live)
+
+    def masked(self, x: Complex[Array, " n_points"]) -> Complex[Array, " n_points"]:
         """``x`` zero at the points that are not live: diag(live) x."""
         return x if self.live is None else jnp.where(self.live, x, 0)
 
@@ -106,13 +111,13 @@ class GRT(eqx.Module):
     def view(self, rho: Complex[Array, " n_points"], index) -> Complex[Array, "f m n"]:
         """The signal of viewpoint ``index`` (may be traced): one row block of the operator.
         Its voxels are split over the devices (not inside a `shard_map`)."""
-        rho = self._masked(jnp.asarray(rho, jnp.complex64))
+        rho = self.masked(jnp.asarray(rho, jnp.complex64))
         return _row(self, _grt.forward_view, rho, self._index(index))
 
     def view_adjoint(self, signal: Complex[Array, "f m n"], index) -> Complex[Array, " n_points"]:
         """Backprojection of one viewpoint's signal: the adjoint of `view`."""
         signal = jnp.asarray(signal, jnp.complex64)
-        return self._masked(_row(self, _grt.adjoint_view, signal, self._index(index)))
+        return self.masked(_row(self, _grt.adjoint_view, signal, self._index(index)))
 
     @eqx.filter_jit
     def __call__(self, rho: Complex[Array, " n_points"]) -> Complex[Array, "v f m n"]:
@@ -120,7 +125,7 @@ class GRT(eqx.Module):
         rho = jnp.asarray(rho, jnp.complex64)
         if rho.shape != (self.n_points,):
             raise ValueError(f"GRT: `rho` must have shape ({self.n_points},), got {rho.shape}.")
-        rho = self._masked(rho)
+        rho = self.masked(rho)
 
         def local(azimuth, polar, rho):
             return jax.lax.map(
@@ -150,7 +155,7 @@ class GRT(eqx.Module):
             zero = _grt._zeros((self.n_points,), signal.dtype, *leaves)
             return jax.lax.scan(step, zero, (azimuth, polar, signal))[0]
 
-        return self._masked(over_views(local, self.azimuth, self.polar, signal, reduce=True))
+        return self.masked(over_views(local, self.azimuth, self.polar, signal, reduce=True))
 
     def _kernel(self, kernel, data, azimuth, polar):
         """``kernel`` (`forward_view` or `adjoint_view`: split over voxels where that

@@ -345,9 +345,7 @@ def _check_collapse(solution: Solution, fn: GRT, signal, *, warm: bool) -> str |
     index = spread(fn.n_views, 10)
     energy = float(_energy_ratio(*replicated((fn, solution.rho, signal, jnp.asarray(index)))))
     gain_ratio = float(abs(solution.field.gain)) / solution.stats["initial_gain"]
-    rho = np.asarray(solution.rho)
-    if fn.live is not None:  # the points that exist: padding must not move mean or spread
-        rho = rho[np.asarray(fn.live)]
+    rho = np.asarray(solution.rho)[fn.live_points()]  # padding must not move mean or spread
     return diagnose(solution.history.loss, rho, energy, gain_ratio, warm=warm)
 
 
@@ -479,8 +477,7 @@ def _train(
             stats |= {"fine_from_epoch": switch, "active": trained}
         elif trained_active is not None:  # what was trained: the field on its active set
             rho = jnp.where(jnp.asarray(trained), rho, 0)
-        if fn.live is not None:  # ρ = 0 on an operator's padding, as on any other solver's
-            rho = jnp.where(fn.live, rho, 0)
+        rho = fn.masked(rho)  # ρ = 0 on an operator's padding, as on any other solver's
         return Solution(rho, history, stopped, stats, field=best)
 
     start = time.perf_counter()
@@ -596,7 +593,7 @@ class _Candidates:
         self.fn, self.points = fn, points
         # the points that exist: an operator padded to a shared size (`grt_operator`'s
         # pad_to) holds copies of one of them, which must never join an active set
-        self.live = np.ones(len(points), bool) if fn.live is None else np.asarray(fn.live)
+        self.live = fn.live_points()
         self.coords = jnp.asarray(points, jnp.float32)
         self.tree = scipy.spatial.cKDTree(points)
         if len(points) > 1:  # neighbours: within √3 spacings (the 26 around a grid point)

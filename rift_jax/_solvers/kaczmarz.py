@@ -88,8 +88,7 @@ def kaczmarz(
     pad = -n_points % n_dev
     points = pad_leading(fn.points, pad, "edge")
     # padding voxels (the devices', and any the operator's own `live` marks) never move
-    live = jnp.ones(n_points, bool) if fn.live is None else fn.live
-    mask = pad_leading(live, pad, "constant")
+    mask = pad_leading(jnp.asarray(fn.live_points()), pad, "constant")
     # split as `_sweep` returns it: a replicated start compiled the sweep a second time
     x = split_over_devices(jnp.where(mask, pad_leading(x, pad, "constant"), 0))
     norm = jnp.linalg.norm(signal)

@@ -197,7 +197,7 @@ def _power_norm(fn, iterations: int, seed: int) -> float:
     """‖A‖² ≈ the Rayleigh quotient ‖Av‖²/‖v‖² after power iterations on AᴴA, from a
     seeded start drawn for the live points only (`GRT.live`): a padded problem starts
     where its unpadded one does, so it finds the same step."""
-    live = np.ones(fn.n_points, bool) if fn.live is None else np.asarray(fn.live)
+    live = fn.live_points()
     re, im = jax.random.normal(jax.random.key(seed), (2, int(live.sum())))
     start = np.zeros(fn.n_points, np.complex64)
     start[live] = np.asarray(jax.lax.complex(re, im))
