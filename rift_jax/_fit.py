@@ -8,8 +8,6 @@ predict unseen viewpoints and score itself with the paper's metrics.
 from __future__ import annotations
 
 import dataclasses
-import functools
-import inspect
 import time
 import warnings
 from collections.abc import Callable
@@ -19,25 +17,17 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex
 
-from . import _metrics, _solvers
+from . import _metrics
 from ._geometry import Radar, Viewpoints, spread
 from ._models import Field
 from ._operator import grt_operator
 from ._scenes import Scene, grid_size, nesting_granularities, shared_fraction
 from ._sharding import gathered
 from ._solvers import Diverged, History, Stop
+from ._solvers.methods import METHODS
 from ._support import Support, as_mask, estimate_support, mask_at, voxels_holding
 from ._synthesis import PointScatterers, RadarData, synthesize
 from ._validation import check_finite, check_instance, check_nonnegative_int, check_positive
-
-METHODS = {
-    "kaczmarz": _solvers.kaczmarz,
-    "lsmr": _solvers.lsmr,
-    "gauss-newton": _solvers.gauss_newton,
-    "fista": _solvers.fista,
-    "rift-n": functools.partial(_solvers.rift, model="rift-n"),
-    "rift-s": functools.partial(_solvers.rift, model="rift-s"),
-}
 
 DEFAULT_METHOD = "fista"
 """`fit`'s method when none is named: the one that did best on the stress grid with every
@@ -242,15 +232,8 @@ def fit(
     """
     if method not in METHODS:
         raise ValueError(f"fit: unknown `method` {method!r}; choose one of {sorted(METHODS)}.")
-    solver = METHODS[method]
-    parameters = inspect.signature(solver).parameters
-    accepted = set(parameters) - {"operator", "signal", "progress", "monitor", "overrides"}
-    takes_any = any(p.kind is p.VAR_KEYWORD for p in parameters.values())  # checks its own
-    if not takes_any and (unknown := set(options) - accepted):
-        raise ValueError(
-            f"fit: method {method!r} takes no option(s) {sorted(unknown)}; it takes "
-            f"{sorted(accepted - {'seed'})}."
-        )
+    chosen = METHODS[method]
+    chosen.check(method, options)
     for name, value in options.items():  # e.g. tol=nan: no comparison with it ever stops
         if isinstance(value, float | np.floating) and not np.isfinite(value):
             raise ValueError(f"fit: option `{name}` must be finite, got {value!r}.")
@@ -275,15 +258,15 @@ def fit(
     on = None if mask is None else Support.padded(mask)  # the operator's points
     if on is not None:
         operator = on.operator(radar, viewpoints, points)
-    if "seed" in accepted:
+    if chosen.seeded:
         options = {"seed": seed, **options}
     solver_options = options
     if isinstance(options.get("init"), Field):  # a result's field is in the scene's units
         solver_options = {**options, "init": options["init"].scaled(1 / scale)}
-    if "extent" in accepted:  # RIFT: the grid's coordinate scale, with or without a support
+    if chosen.inr:  # the grid's coordinate scale, with or without a support
         solver_options = {"extent": float(np.max(np.abs(points))), **solver_options}
     fine = None
-    if "fine_points" in accepted and "train_granularity" in options:  # RIFT, coarse to fine
+    if chosen.inr and "train_granularity" in options:  # coarse to fine
         solver_options = dict(solver_options)
         if (fine_granularity := solver_options.pop("train_granularity")) is not None:
             if not (
@@ -381,7 +364,7 @@ def fit(
         )
 
     try:
-        return result(solver(operator, signal, progress=progress, **solver_options))
+        return result(chosen.solve(operator, signal, progress=progress, **solver_options))
     except Diverged as error:
         error.result = result(error.solution)
         raise

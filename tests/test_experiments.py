@@ -310,15 +310,16 @@ def test_draw_shares_the_test_views_and_nests_the_training_views():
 
 
 def test_rift_options_give_every_run_the_same_steps_and_three_halvings():
-    from rift_jax._solvers.inr import Recipe, _halving_steps, _schedule
+    from rift_jax._solvers.inr.optimizer import halving_steps, schedule
+    from rift_jax._solvers.inr.recipe import Recipe
 
     for n, steps in ((100, 200), (1000, 200), (500, 300), (1000, 10000)):
         options = runner.rift_options(n, steps=steps)
         per_epoch = -(-n // options["batch_views"])
         total = options["epochs"] * per_epoch
         assert total == pytest.approx(steps, rel=0.2)
-        schedule = _schedule(1.0, _halving_steps(Recipe(**options), per_epoch))
-        rates = sorted({float(schedule(step)) for step in range(total)})
+        rate = schedule(1.0, halving_steps(Recipe(**options), per_epoch))
+        rates = sorted({float(rate(step)) for step in range(total)})
         assert rates == [0.125, 0.25, 0.5, 1.0], (n, steps, rates)
 
 

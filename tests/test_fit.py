@@ -1,11 +1,15 @@
 """`rift_jax.fit` end to end: the Scene path, the bring-your-own-data path, FitResult."""
 
+import dataclasses
+import functools
+import inspect
 import warnings
 
 import numpy as np
 import pytest
 
 import rift_jax as rj
+from rift_jax._solvers.methods import METHODS
 
 
 @pytest.fixture(scope="module")
@@ -70,6 +74,27 @@ def test_zero_signal_warns(small_cube):
         result = rj.fit(zeros, train, radar=radar, extent=2.0, granularity=1.0, progress=False)
     assert not np.any(result.scene.reflectivity) and result.support is None  # none to see
     assert result.stopped.outcome is rj.solvers.Outcome.ZERO_SIGNAL
+
+
+def test_each_method_declares_the_options_its_solver_takes():
+    """`fit` checks options against each method's declaration, not its solver's signature:
+    the two must agree (for RIFT, plus the Recipe's fields and `train_granularity`, less
+    what fit passes itself)."""
+    recipe = {field.name for field in dataclasses.fields(rj.solvers.Recipe)}
+    for name, method in METHODS.items():
+        solver = method.solve
+        fixed = set(solver.keywords) if isinstance(solver, functools.partial) else set()
+        parameters = inspect.signature(solver).parameters
+        keywords = {p for p, v in parameters.items() if v.kind is v.KEYWORD_ONLY}
+        expected = keywords - {"progress", "monitor", "seed"}
+        if method.inr:
+            expected = (expected | fixed | recipe | {"train_granularity"}) - {
+                "extent",
+                "fine_points",
+            }
+        assert method.options == expected, name
+        assert method.seeded == ("seed" in parameters), name
+        assert method.inr == ("fine_points" in parameters), name
 
 
 def test_bad_input(small_cube):

@@ -10,14 +10,9 @@ from conftest import random_complex, run_docs_block
 
 import rift_jax as rj
 from rift_jax._solvers._common import as_complex, as_pair, realified
-from rift_jax._solvers.inr import (
-    _batches,
-    _Candidates,
-    _decay_mask,
-    _optimizer,
-    _step,
-    _StepPoints,
-)
+from rift_jax._solvers.inr.active_set import Candidates, StepPoints
+from rift_jax._solvers.inr.optimizer import _decay_mask, optimizer_for
+from rift_jax._solvers.inr.training import _step, batch_order
 from rift_jax._support import mask_at
 
 # These tests train tiny budgets to test training's mechanics, not its quality: whether a
@@ -117,11 +112,11 @@ def test_losses_hand_values():
 
 def test_batches_visit_every_viewpoint_in_one_shape():
     rng = np.random.default_rng(0)
-    batches = _batches(rng, 23, 10)
+    batches = batch_order(rng, 23, 10)
     assert batches.shape == (3, 10)
     assert set(batches.ravel()) == set(range(23))  # all 23, plus 7 repeated to fill up
-    assert not np.array_equal(batches, _batches(rng, 23, 10))  # a fresh order each epoch
-    assert _batches(rng, 5, 5).shape == (1, 5)
+    assert not np.array_equal(batches, batch_order(rng, 23, 10))  # a fresh order each epoch
+    assert batch_order(rng, 5, 5).shape == (1, 5)
 
 
 def test_weight_decay_spares_the_gain():
@@ -200,8 +195,8 @@ def test_jit_step_equals_eager_step(tiny):
     field = rj.Field(rj.RiftN(width=8, depth=2, key=jax.random.key(0)), extent=1.0, gain=5.0)
     params, static = eqx.partition(field, eqx.is_inexact_array)
     recipe = rj.solvers.Recipe(batch_views=2, learning_rate=1e-2)
-    optimizer, state = _optimizer(recipe, 8, params)
-    points = _StepPoints(operator.fn, jnp.asarray(scene.points(), jnp.float32))
+    optimizer, state = optimizer_for(recipe, 8, params)
+    points = StepPoints(operator.fn, jnp.asarray(scene.points(), jnp.float32))
     args = (params, state, static, optimizer, recipe.loss_fn, points)
     rest = (jnp.asarray(signal), jnp.arange(2))
     jitted = _step(*args, *rest)
@@ -353,7 +348,7 @@ def test_a_padded_active_set_trains_as_the_set_itself(small_cube):
     clipping, Adam's first moment after one step is 0.1 x the gradient itself)."""
     radar, scene, train, _ = small_cube
     operator = rj.grt_operator(radar, train, scene.points())
-    candidates = _Candidates(operator.fn, scene.points().astype(np.float64))
+    candidates = Candidates(operator.fn, scene.points().astype(np.float64))
     active = np.sort(np.random.default_rng(0).choice(729, 50, replace=False))
     padded = candidates.restricted(active)
     assert padded.n_points == 56 and int(padded.fn.live.sum()) == 50
@@ -363,10 +358,11 @@ def test_a_padded_active_set_trains_as_the_set_itself(small_cube):
     plain = eqx.tree_at(
         lambda p: p.points, operator.fn, jax.tree.map(lambda a: a[active], operator.fn.points)
     )
-    plain = _StepPoints(plain, jnp.asarray(scene.points()[active], jnp.float32))
+    plain = StepPoints(plain, jnp.asarray(scene.points()[active], jnp.float32))
     field = rj.Field(rj.RiftN(width=16, depth=2, key=jax.random.key(0)), extent=2.0, gain=3.0)
     params, static = eqx.partition(field, eqx.is_inexact_array)
-    optimizer, state = _optimizer(rj.solvers.Recipe(learning_rate=1e-2, clip_norm=None), 3, params)
+    recipe = rj.solvers.Recipe(learning_rate=1e-2, clip_norm=None)
+    optimizer, state = optimizer_for(recipe, 3, params)
     signal = jnp.asarray(rj.synthesize(scene, train, radar).signal)
     common = (params, state, static, optimizer, rj.losses.robust_loss)
     ours, theirs = (_step(*common, p, signal, jnp.arange(10)) for p in (padded, plain))
@@ -448,7 +444,8 @@ def test_coarse_to_fine_on_a_support_after_patience_and_a_coarse_divergence(smal
         drift = jnp.abs(jnp.sum(jnp.abs(pred) ** 2) / jnp.sum(jnp.abs(target) ** 2) - 1)
         return rj.losses.robust_loss(pred, target) + jnp.where(drift > 1e-2, jnp.nan, 0.0)
 
-    with pytest.raises(rj.solvers.Diverged, match=r"loss was nan at epoch 2") as error:
+    diverged = r"at epoch 2, the loss was nan in step 1 of 1"
+    with pytest.raises(rj.solvers.Diverged, match=diverged) as error:
         rj.fit(
             scene, train, train_granularity=0.5, epochs=10, loss=fragile, batch_views=None,
             learning_rate=0.1, **common,

@@ -11,6 +11,7 @@ from conftest import random_complex, relative_error
 import rift_jax as rj
 from rift_jax import solvers
 from rift_jax._solvers._common import as_complex, as_pair, realified
+from rift_jax._solvers._solution import Patience, Record, iterate
 
 RUNS = {
     "kaczmarz": (solvers.kaczmarz, {"iterations": 150, "tol": 0.0}, 5e-3),
@@ -61,6 +62,47 @@ def test_history_lengths(solutions):
     assert len(solutions["kaczmarz"].history) == 150  # sweeps
     assert len(solutions["lsmr"].history) == 6  # checks, every 10 LSMR steps
     assert len(solutions["gauss-newton"].history) == 3
+
+
+def test_one_loop_one_stopping_rule():
+    """`iterate`'s `Patience` measures progress from the last iteration that made enough of
+    it (small steps cannot keep resetting the bar); a `Record` may judge the best by its
+    own measure; a ``fresh`` record restarts the best and the patience, and ``then`` may go
+    on after a stop (RIFT's coarse-to-fine stages)."""
+
+    def run(values, **kwargs):
+        def step(k):
+            return k + 1, values[k]
+
+        return iterate(step, 0, iterations=len(values), progress=False, desc="t",
+                       image=lambda k: k, **kwargs)  # fmt: skip
+
+    # improves at 1, 2 and 3 (by ≥ 1 % of the last improvement's value); 4-6 creep by
+    # 0.25 % each: 6 − 3 = 3 iterations without enough progress
+    creeping = [1.0, 0.5, 0.4, 0.399, 0.398, 0.397, 0.1]
+    best, history, stopped, stats = run(creeping, until=Patience(3, 0.01))
+    assert stopped == rj.solvers.Stop(rj.solvers.Outcome.CONVERGED, 6)
+    assert len(history) == 6 and stats == {"best": 5} and best == 6
+    assert run(creeping, until=None).stopped.outcome is rj.solvers.Outcome.BUDGET
+    assert Patience.from_tol(0) is None and Patience.from_tol(1e-3) == Patience(3, 1e-3)
+    # a measure of its own picks the best, whatever the residual; a fresh stage restarts
+    # both the best (a worse measure wins) and the patience
+    records = [Record(1.0, measure=m, at=f"at {k}", fresh=k == 3) for k, m in enumerate(
+        [5.0, 4.0, 4.0, 9.0, 9.0, 9.0, 9.0])]  # fmt: skip
+    best, history, stopped, stats = run(records, until=Patience(2, 0.0))
+    assert best == "at 3" and stats == {"best": 3}  # epoch 4's, worse than 4.0 before it
+    assert stopped.at == 6 and history.loss is None
+    # `then` is asked when the rule stops, and may give more iterations (here 2, which
+    # then run out: the budget ends the run)
+    asked = []
+
+    def then(carry, k):
+        asked.append(k)
+        return carry, 2
+
+    extended = run(creeping * 2, until=Patience(3, 0.01), then=then)
+    assert asked == [6] and extended.stopped == rj.solvers.Stop(rj.solvers.Outcome.BUDGET, 8)
+    assert len(extended.history) == 8 and extended.best == 7  # 0.1, in the extension
 
 
 def test_tolerance_stops_early(problem):

@@ -115,23 +115,23 @@ def test_a_zero_field_is_retried_from_a_fresh_start(tiny, monkeypatch):
     """A first attempt stuck at a zero field (a start whose fixed gain is 1e-12) is detected
     and retried from seed + 1000 at half the learning rate: the result is exactly that
     retry's, and the remedy is recorded."""
-    from rift_jax._solvers import inr
+    from rift_jax._solvers.inr import training
 
     scene, train = tiny
-    original, calls = inr._initial_field, []
+    original, calls = training.initial_field, []
 
     def first_one_dead(*args):
         field = original(*args)
         calls.append(field)
         return rj.Field(field.model, field.extent, 1e-12) if len(calls) == 1 else field
 
-    monkeypatch.setattr(inr, "_initial_field", first_one_dead)
+    monkeypatch.setattr(training, "initial_field", first_one_dead)
     result = rj.fit(scene, train, gain=False, seed=3, **TINY)
     assert len(calls) == 2 and result.stats["attempts"] == 2 and result.stats["collapse"] is None
     (remedy,) = result.stats["remedies"]
     assert remedy["collapse"].startswith("zero field")
     assert remedy["seed"] == 1003 and remedy["learning_rate"] == pytest.approx(5e-3)
-    monkeypatch.setattr(inr, "_initial_field", original)
+    monkeypatch.setattr(training, "initial_field", original)
     direct = rj.fit(scene, train, gain=False, seed=1003, learning_rate=5e-3, **TINY)
     np.testing.assert_array_equal(result.scene.reflectivity, direct.scene.reflectivity)
 

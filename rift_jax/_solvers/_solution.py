@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
+import math
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
@@ -121,77 +123,157 @@ def call_monitor(monitor: Monitor, iteration: int, seconds: float, current) -> t
     return time.perf_counter() - start, bool(stop)
 
 
-_PATIENCE = 3
+@dataclasses.dataclass(frozen=True)
+class Patience:
+    """The stopping rule of every solver: stop once ``iterations`` in a row have not lowered
+    the measure (a least-squares residual, RIFT's loss) below ``1 - min_improvement`` times
+    its value at the last iteration that did: progress is measured from there, so that small
+    steps cannot keep resetting the bar."""
+
+    iterations: int
+    min_improvement: float
+
+    @classmethod
+    def from_tol(cls, tol: float) -> Patience | None:
+        """The least-squares solvers' ``tol``: three iterations (Kaczmarz's and FISTA's
+        residuals are not monotone); ``tol=0`` runs the whole budget (None)."""
+        return cls(3, tol) if tol > 0 else None
+
+
+@dataclasses.dataclass(frozen=True)
+class Record:
+    """What one iteration observed, when it is more than a residual (RIFT's epochs).
+
+    - `residual`: the relative data residual, for the history.
+    - `measure`: what the best iterate and `Patience` follow (None: the residual), e.g. a
+      training loss or a held-out residual.
+    - `loss`: a training loss, for the history.
+    - `at`: the iterate ``measure`` was taken at (None: ``image(carry)``).
+    - `failure`: what went non-finite and where, when something did (the run diverged).
+    - `fresh`: a new stage starts with this iteration (RIFT's coarse to fine): the best
+      and the patience start again from it.
+    """
+
+    residual: float
+    measure: float | None = None
+    loss: float | None = None
+    at: Any = None
+    failure: str | None = None
+    fresh: bool = False
+
+
+class Run(NamedTuple):
+    """What `iterate` returns: the best iterate (by the measure), the `History`, the `Stop`,
+    and ``stats = {"best": k}``, the best's index in the history (None: the start)."""
+
+    best: Any
+    history: History
+    stopped: Stop
+    stats: dict
+
+    def solution(self) -> Solution:
+        return Solution(*self)
 
 
 def iterate(
-    step: Callable[[Any], tuple[Any, Array]],
+    step: Callable[[Any], tuple[Any, Array | Record]],
     carry: Any,
     *,
     iterations: int,
-    tol: float,
+    until: Patience | None,
     progress: bool,
     desc: str,
-    image: Callable[[Any], Array],
-    start_residual: float = 1.0,
+    unit: str = "iteration",
+    image: Callable[[Any], Any],
+    start_measure: float = 1.0,
     monitor: Monitor | None = None,
-) -> tuple[Array, History, Stop, dict]:
-    """Call ``carry, residual = step(carry)`` up to ``iterations`` times and return the best
-    iterate: ``(ρ, history, stop, {"best": k})``.
+    shown: Callable[[Any], Any] | None = None,
+    then: Callable[[Any, int], tuple[Any, int] | None] | None = None,
+    finish: Callable[[Run], Solution] = Run.solution,
+    hint: str = "",
+) -> Run:
+    """Call ``carry, record = step(carry)`` up to ``iterations`` times and return the best
+    iterate as a `Run`: the one loop, progress bar, stopping rule and divergence path of
+    every solver.
 
-    ``residual`` must be the relative data residual of ``image(carry)``, the ρ that `step`
-    returned, so that the ρ returned here is the one with the lowest residual seen, the
-    start included (``start_residual``, 1 for ρ = 0): a least squares solver never ends
-    worse than where it began, however its residual bounces. ``history.residual[k]`` is the
-    returned ρ's residual; k is None when no iterate beat the start.
+    ``record`` is the relative data residual of ``image(carry)``, the ρ that `step`
+    returned (a scalar, waited for here), or a `Record` when the best is judged by another
+    measure. The iterate returned is the one with the lowest measure seen, the start
+    included (``start_measure``, 1 for ρ = 0): a least squares solver never ends worse
+    than where it began, however its residual bounces. ``history.residual[k]`` is the
+    k-th iteration's residual; ``stats["best"]`` is None when no iterate beat the start.
 
-    Stops early when the best relative residual of the last three iterations is not lower
-    than the best before them by a factor ``1 - tol``: the run has stagnated (three, not one,
-    because Kaczmarz's and FISTA's residuals are not monotone). ``tol=0`` runs the whole
-    budget.
+    ``until`` (a `Patience`) ends the run once the measure stalls (`Outcome.CONVERGED`);
+    None runs the whole budget. ``then(carry, k)``, if given, is asked when it does: it
+    may return ``(carry, more)`` to go on for ``more`` iterations (a next stage; its first
+    `Record` says ``fresh``).
     ``monitor(k, seconds, current)``, if given, is called after iteration k (from 1), with
-    ``current()`` giving the best iterate so far; the time it takes is left out of
-    ``seconds`` and of the history, and if it returns True the run ends there
+    ``current()`` giving ``shown(best)`` (default the best itself); the time it takes is
+    left out of ``seconds`` and of the history, and if it returns True the run ends there
     (`Outcome.STOPPED`).
-    A non-finite residual raises `Diverged` naming the iteration; its ``.solution`` holds the
-    best iterate before it. The progress
-    bar appears only for runs longer than two seconds.
+    A non-finite residual or a record's ``failure`` raises `Diverged` naming the
+    iteration (a ``unit``: "epoch" for RIFT) and ``hint``; its ``.solution`` is ``finish``
+    of the run before it. The progress bar appears only for runs longer than two seconds.
     """
-    residuals, seconds = [], []
-    best, best_residual, best_index = image(carry), start_residual, None
+    residuals, losses, seconds = [], [], []
+    best, best_measure, best_index = image(carry), start_measure, None
+    reference, improved = math.inf, 0  # `until`'s: the measure of the last progress, and when
+    shown = shown or (lambda best: best)
     stopped = None
+
+    def run(stop: Stop, n: int) -> Run:
+        loss = np.asarray(losses[:n]) if losses else None
+        history = History(np.asarray(residuals[:n]), np.asarray(seconds[:n]), loss)
+        return Run(best, history, stop, {"best": best_index})
+
     start = time.perf_counter()
     with tqdm(total=iterations, desc=desc, disable=not progress, delay=2.0, leave=False) as bar:
-        for k in range(iterations):
-            carry, residual = step(carry)
-            residual = float(jax.block_until_ready(residual))
+        k = 0
+        while k < iterations:
+            k += 1
+            carry, record = step(carry)
+            if not isinstance(record, Record):
+                record = Record(float(jax.block_until_ready(record)))
             seconds.append(time.perf_counter() - start)
-            if not np.isfinite(residual):
-                history = History(np.asarray(residuals), np.asarray(seconds[:-1]))
+            failure = record.failure
+            if failure is None and not np.isfinite(record.residual):
+                failure = f"the data residual became {record.residual}"
+            if failure is not None:
+                kept = "the start" if best_index is None else f"{unit} {best_index + 1}"
                 raise Diverged(
-                    f"{desc}: the data residual became {residual} at iteration {k + 1}; the "
-                    "iteration diverged (for FISTA, lower the step size). The best iterate "
-                    "before it is kept in this error's `.solution` (and `.result` from fit).",
-                    Solution(best, history, Stop(Outcome.DIVERGED, k + 1), {"best": best_index}),
+                    f"{desc}: at {unit} {k}, {failure}; the run diverged. The best before it "
+                    f"({kept}) is kept in this error's `.solution` (and `.result` from fit)."
+                    + (f" {hint}" if hint else ""),
+                    finish(run(Stop(Outcome.DIVERGED, k), k - 1)),
                 )
-            residuals.append(residual)
-            if residual < best_residual:
-                best, best_residual, best_index = image(carry), residual, k
-            bar.set_postfix(residual=f"{residual:.4g}", refresh=False)
+            residuals.append(record.residual)
+            if record.loss is not None:
+                losses.append(record.loss)
+            measure = record.residual if record.measure is None else record.measure
+            if record.fresh:
+                best_measure, reference, improved = math.inf, math.inf, k - 1
+            if measure < (1 - (until.min_improvement if until else 0)) * reference:
+                reference, improved = measure, k
+            if measure < best_measure:
+                best = image(carry) if record.at is None else record.at
+                best_measure, best_index = measure, k - 1
+            postfix = {"residual": f"{record.residual:.4g}"}
+            if record.loss is not None:
+                postfix |= {"loss": f"{record.loss:.4g}", "best": f"{best_measure:.4g}"}
+            bar.set_postfix(postfix, refresh=False)
             bar.update()
             if monitor is not None:
-                looked, stop = call_monitor(monitor, k + 1, seconds[-1], lambda best=best: best)
+                current = functools.partial(shown, best)
+                looked, stop = call_monitor(monitor, k, seconds[-1], current)
                 start += looked
                 if stop:
-                    stopped = Stop(Outcome.STOPPED, k + 1)
+                    stopped = Stop(Outcome.STOPPED, k)
                     break
-            if (
-                tol > 0
-                and k >= _PATIENCE
-                and min(residuals[-_PATIENCE:]) >= (1 - tol) * min(residuals[:-_PATIENCE])
-            ):
-                stopped = Stop(Outcome.CONVERGED, k + 1)
-                break
-    history = History(np.asarray(residuals), np.asarray(seconds))
-    stopped = stopped or Stop(Outcome.BUDGET, len(residuals))
-    return best, history, stopped, {"best": best_index}
+            if until is not None and k - improved >= until.iterations:
+                if then is None or (going_on := then(carry, k)) is None:
+                    stopped = Stop(Outcome.CONVERGED, k)
+                    break
+                carry, more = going_on
+                iterations = k + more
+                bar.total = iterations
+    return run(stopped or Stop(Outcome.BUDGET, k), k)

@@ -13,7 +13,7 @@ from .._operator import GRT, GRTOperator
 from .._precision import Float64Pair, exact_jit
 from .._sharding import DEVICES, device_mesh, pad_leading, split_over_devices
 from ._common import check_problem, relative, residual_of, zero_signal
-from ._solution import Monitor, Solution, iterate
+from ._solution import Monitor, Patience, Solution, iterate
 
 
 def kaczmarz(
@@ -65,8 +65,8 @@ def kaczmarz(
     - `iterations`: sweeps.
     - `relaxation`: the starting λ, in (0, 2); halved after each sweep that does not lower
       the residual.
-    - `tol`: stop once the residual stagnates (see `iterate`): by default the run goes on
-      until converged, at most ``iterations`` sweeps; 0 runs every sweep.
+    - `tol`: stop once the residual stagnates (`Patience.from_tol`): by default the run goes
+      on until converged, at most ``iterations`` sweeps; 0 runs every sweep.
     - `seed`: seeds the block orders.
     - `x0`: starting ρ (default 0), e.g. a previous run's result to resume it.
     - `progress`: show a progress bar on runs longer than two seconds.
@@ -113,12 +113,12 @@ def kaczmarz(
         step,
         x,
         iterations=iterations,
-        tol=tol,
+        until=Patience.from_tol(tol),
         progress=progress,
         monitor=monitor,
         desc="kaczmarz",
         image=lambda x: x[:n_points],
-        start_residual=best["residual"],
+        start_measure=best["residual"],
     )
     stats |= {"relaxations": relaxations, "undone": undone}
     return Solution(x, history, stopped, stats)

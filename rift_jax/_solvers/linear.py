@@ -10,7 +10,7 @@ from .._operator import GRTOperator
 from .._precision import exact_jit
 from .._validation import check_positive_int
 from ._common import check_problem, relative, residual_of, zero_signal
-from ._solution import Monitor, Solution, iterate
+from ._solution import Monitor, Patience, Solution, iterate
 
 
 def lsmr(
@@ -42,7 +42,7 @@ def lsmr(
     - `operator`, `signal`, `x0`, `progress`, `monitor`: as `kaczmarz`.
     - `iterations`: LSMR steps in all (rounded up to a multiple of ``check_every``).
     - `check_every`: LSMR steps between checks.
-    - `tol`: stop when the residual stagnates (see `iterate`); 0 runs every step.
+    - `tol`: stop when the residual stagnates (`Patience.from_tol`); 0 runs every step.
 
     **Returns:** a `Solution`, one history entry per check; the residual is lineax's
     ‖y − Aρ‖ estimate at the check.
@@ -62,12 +62,12 @@ def lsmr(
         step,
         x,
         iterations=-(-iterations // steps),
-        tol=tol,
+        until=Patience.from_tol(tol),
         progress=progress,
         monitor=monitor,
         desc="lsmr",
         image=lambda x: x,
-        start_residual=residual_of(operator.fn, signal, x),
+        start_measure=residual_of(operator.fn, signal, x),
     )
     return Solution(x, history, stopped, stats | {"check_every": steps})
 

@@ -27,7 +27,7 @@ from ._common import (
     residual_of,
     zero_signal,
 )
-from ._solution import Monitor, Solution, iterate
+from ._solution import Monitor, Patience, Solution, iterate
 
 
 def gauss_newton(
@@ -59,7 +59,7 @@ def gauss_newton(
     - `inner`: LSMR steps per outer step.
     - `damped`: Levenberg-Marquardt (trust-region damping) instead of plain Gauss-Newton.
       The problem is linear, so damping only slows it down; it is here for comparison.
-    - `tol`: stop when the residual stagnates (see `iterate`); 0 runs every step.
+    - `tol`: stop when the residual stagnates (`Patience.from_tol`); 0 runs every step.
 
     **Returns:** a `Solution`; the residual is ‖y − Aρ‖/‖y‖ at each step's ρ.
     """
@@ -81,12 +81,12 @@ def gauss_newton(
         step,
         step((y, state))[0],
         iterations=iterations,
-        tol=tol,
+        until=Patience.from_tol(tol),
         progress=progress,
         monitor=monitor,
         desc=where,
         image=lambda carry: as_complex(carry[0]),
-        start_residual=residual_of(operator.fn, signal, x),
+        start_measure=residual_of(operator.fn, signal, x),
     )
     return Solution(rho, history, stopped, stats | {"inner": inner, "damped": damped})
 

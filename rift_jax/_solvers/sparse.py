@@ -20,7 +20,7 @@ from .._precision import exact_jit
 from .._sharding import replicated
 from .._validation import check_positive_int
 from ._common import as_complex, as_pair, check_problem, relative, residual_of, zero_signal
-from ._solution import History, Monitor, Solution, iterate
+from ._solution import History, Monitor, Patience, Solution, iterate
 
 with warnings.catch_warnings():
     warnings.filterwarnings("ignore", message=".*no longer maintained", category=DeprecationWarning)
@@ -61,7 +61,7 @@ def fista(
     - `sparsity`: λ relative to max|Aᴴy|, in [0, 1).
     - `nonnegative`: constrain ρ to real, non-negative values.
     - `power_iterations`: power iterations for ‖A‖².
-    - `tol`: stop when the residual stagnates (see `iterate`); 0 runs every step.
+    - `tol`: stop when the residual stagnates (`Patience.from_tol`); 0 runs every step.
     - `seed`: seeds the power iteration's start.
 
     **Returns:** a `Solution` holding the iterate with the lowest residual (FISTA's is not
@@ -100,12 +100,13 @@ def fista(
         step,
         _init(solver, pair, lam, fn, signal, step_size),
         iterations=iterations,
-        tol=tol,
+        until=Patience.from_tol(tol),
         progress=progress,
         monitor=monitor,
         desc=where,
         image=lambda carry: as_complex(carry[4]),
-        start_residual=float("inf"),  # the start's residual is the first step's record
+        start_measure=float("inf"),  # the start's residual is the first step's record
+        hint="More `power_iterations` estimate the step 1/L more safely.",
     )
     checked = time.perf_counter()  # the history's clock leaves a monitor's time out
     final = as_complex(last["pair"])
