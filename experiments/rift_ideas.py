@@ -3,12 +3,14 @@
     python -m experiments.rift_ideas [--scale quick|default] [--out DIR] [--seed 0]
                                      [--resume] [--no-progress]
 
-Each idea is RIFT(N) at `fit`'s defaults plus one option (`IDEAS`):
+Each idea is `fit(method="rift-n")` at its defaults plus one option (`IDEAS`):
 
 - **LS start** (``init="fista"``): training starts from the INR fitted to FISTA's image on
   the same support and data (`rift_jax.solvers.rift`, ``init``);
 - **sparsity** (``sparsity=0.1``): the loss gains ‖ρ‖₁/(√k‖ρ‖₂), a scale-free sparsity
-  prior, FISTA's kind of prior (`rift_jax.solvers.Recipe`).
+  prior, FISTA's kind of prior (`rift_jax.solvers.Recipe`);
+- **hash grid** (``model="hash-grid"``): a multiresolution hash encoding and a small MLP
+  (`rift_jax.HashGrid`, Instant-NGP's, as DART uses) in place of RIFT(N)'s MLP.
 
 They run on the stress grid's cells where a prior should matter most (10 and 30 training
 views at 0 dB; `experiments.stability`), beside RIFT(N) and FISTA at their defaults, each
@@ -34,7 +36,11 @@ import rift_jax as rj
 from . import stability
 from .runner import Run, build_scene, command, environment_line, execute, write_atomic
 
-IDEAS = {"RIFT(N)+LS start": {"init": "fista"}, "RIFT(N)+sparsity": {"sparsity": 0.1}}
+IDEAS = {
+    "RIFT(N)+LS start": {"init": "fista"},
+    "RIFT(N)+sparsity": {"sparsity": 0.1},
+    "RIFT(hash grid)": {"model": "hash-grid"},
+}
 VARIANTS = ("RIFT(N)", *IDEAS, "FISTA")
 SNR = 0.0  # the cells: 0 dB, from the stress grid's two fewest view counts
 SCALES = {

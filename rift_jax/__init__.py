@@ -53,6 +53,7 @@ from ._io import load_rift_public as load_rift_public  # noqa: E402
 from ._io import save as save  # noqa: E402
 from ._models import AbstractINR as AbstractINR  # noqa: E402
 from ._models import Field as Field  # noqa: E402
+from ._models import HashGrid as HashGrid  # noqa: E402
 from ._models import RiftN as RiftN  # noqa: E402
 from ._models import RiftS as RiftS  # noqa: E402
 from ._operator import GRT as GRT  # noqa: E402

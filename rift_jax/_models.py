@@ -124,7 +124,89 @@ class RiftS(AbstractINR):
         return jnp.sin(self.output(h))
 
 
-MODELS = {"rift-n": RiftN, "rift-s": RiftS}
+class HashGrid(AbstractINR):
+    """A multiresolution hash encoding (Müller et al. 2022, "Instant neural graphics
+    primitives"; the encoding DART uses) and a small MLP.
+
+    ``levels`` grids over [-1, 1]³, their cells per axis growing geometrically from
+    ``coarsest`` to ``finest``. Each level keeps ``features`` values per grid corner in a
+    table of ``table_size`` entries: one entry per corner where the level has no more
+    corners than entries, a spatial hash (the paper's, XOR of the coordinates times large
+    primes) where it has more. A point's encoding is, per level, the trilinear blend of its
+    cell's 8 corners, all levels concatenated; ``depth`` ReLU layers of ``width`` then
+    map it to (Re ρ, Im ρ) through tanh. Tables start U(−1e-4, 1e-4), as the paper's.
+
+    Unlike `RiftN` and `RiftS` it has no smoothness of its own beyond its coarse levels:
+    each fine corner is a free parameter.
+    """
+
+    tables: Float[Array, "levels table features"]
+    hidden: tuple[eqx.nn.Linear, ...]
+    output: eqx.nn.Linear
+    resolutions: tuple[int, ...] = eqx.field(static=True)
+
+    def __init__(
+        self,
+        *,
+        width: int = 64,
+        depth: int = 2,
+        levels: int = 8,
+        features: int = 2,
+        table_size: int = 2**14,
+        coarsest: int = 4,
+        finest: int = 64,
+        key: PRNGKeyArray,
+    ):
+        _check_shape("HashGrid", width, depth)
+        for name, value in (("levels", levels), ("features", features),
+                            ("table_size", table_size), ("coarsest", coarsest)):  # fmt: skip
+            check_positive_int(f"HashGrid: `{name}`", value)
+        if not (isinstance(finest, int) and finest >= coarsest):
+            raise ValueError(
+                f"HashGrid: `finest` must be an int ≥ `coarsest` ({coarsest}), got {finest!r}."
+            )
+        growth = (finest / coarsest) ** (1 / max(levels - 1, 1))
+        self.resolutions = tuple(int(coarsest * growth**level) for level in range(levels))
+        keys = jax.random.split(key, depth + 2)
+        self.tables = jax.random.uniform(keys[0], (levels, table_size, features),
+                                         minval=-1e-4, maxval=1e-4)  # fmt: skip
+        sizes = [levels * features] + [width] * depth
+        self.hidden = tuple(
+            eqx.nn.Linear(n_in, n_out, key=k)
+            for n_in, n_out, k in zip(sizes, sizes[1:], keys[1:], strict=False)
+        )
+        self.output = eqx.nn.Linear(sizes[-1], 2, key=keys[-1])
+
+    def __call__(self, xyz: Float[Array, " 3"]) -> Float[Array, " 2"]:
+        h = self.encode(xyz)
+        for linear in self.hidden:
+            h = jax.nn.relu(linear(h))
+        return jnp.tanh(self.output(h))
+
+    def encode(self, xyz: Float[Array, " 3"]) -> Float[Array, " levels_x_features"]:
+        """The point's encoding: per level, its cell's corner features blended trilinearly."""
+        u = jnp.clip((xyz + 1) / 2, 0.0, 1.0)
+        table_size = self.tables.shape[1]
+        encoded = []
+        for level, n in enumerate(self.resolutions):
+            position = u * n
+            low = jnp.clip(jnp.floor(position), 0, n - 1)
+            frac = position - low
+            corners = low.astype(jnp.uint32) + _CORNERS  # (8, 3)
+            if (n + 1) ** 3 <= table_size:  # dense: one entry per corner
+                index = corners[:, 0] + (n + 1) * (corners[:, 1] + (n + 1) * corners[:, 2])
+            else:
+                index = (corners[:, 0] ^ (corners[:, 1] * jnp.uint32(2654435761))
+                         ^ (corners[:, 2] * jnp.uint32(805459861))) % table_size  # fmt: skip
+            weight = jnp.prod(jnp.where(_CORNERS == 1, frac, 1 - frac), axis=1)
+            encoded.append(weight @ self.tables[level, index])
+        return jnp.concatenate(encoded)
+
+
+# the 8 corners of a cell, as offsets from its lowest one
+_CORNERS = jnp.asarray([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], jnp.uint32)
+
+MODELS = {"rift-n": RiftN, "rift-s": RiftS, "hash-grid": HashGrid}
 
 
 class Field(eqx.Module):

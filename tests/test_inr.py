@@ -49,6 +49,33 @@ def test_model_shapes_and_dtypes(cls):
     np.testing.assert_allclose(field.scaled(3.0).render(5.0 * xyz), 3 * rho, rtol=1e-5)
 
 
+def test_hash_grid_encoding_blends_its_corners(tiny):
+    """`HashGrid`: a dense level's corner holds its own table entry and a cell's centre the
+    mean of its 8 corners; a level with more corners than entries hashes into the table;
+    the model's output is bounded like RiftN's, and `fit` trains it by name."""
+    model = rj.HashGrid(width=8, depth=1, levels=2, features=2, table_size=64, coarsest=2,
+                        finest=8, key=jax.random.key(0))  # fmt: skip
+    assert model.resolutions == (2, 8)  # 27 corners fit in 64 entries; 729 do not
+    tables = jnp.arange(2 * 64 * 2, dtype=jnp.float32).reshape(2, 64, 2)
+    model = eqx.tree_at(lambda m: m.tables, model, tables)
+    corner = jnp.asarray([0.0, -1.0, 1.0])  # level 0: corner (1, 0, 2) of 3 per axis
+    assert np.allclose(model.encode(corner)[:2], tables[0, 1 + 3 * (0 + 3 * 2)])
+    centre = jnp.asarray([-0.5, -0.5, -0.5])  # level 0: the middle of cell (0, 0, 0)
+    corners = [i + 3 * (j + 3 * k) for k in (0, 1) for j in (0, 1) for i in (0, 1)]
+    np.testing.assert_allclose(model.encode(centre)[:2], tables[0, corners].mean(axis=0))
+    xyz = jax.random.uniform(jax.random.key(1), (50, 3), minval=-1, maxval=1)
+    out = jax.vmap(model)(xyz)
+    assert out.shape == (50, 2) and bool(jnp.all(jnp.abs(out) <= 1))
+    hashed = jax.vmap(model.encode)(xyz)[:, 2:]  # level 1: every value a table entry's blend
+    assert bool(jnp.all((hashed >= 128) & (hashed <= 255)))
+    with pytest.raises(ValueError, match="finest"):
+        rj.HashGrid(coarsest=8, finest=4, key=jax.random.key(0))
+    radar, scene, train, _ = tiny
+    result = rj.fit(scene, train, radar=radar, method="rift-n", model="hash-grid", epochs=20,
+                    progress=False)  # fmt: skip
+    assert isinstance(result.field.model, rj.HashGrid) and result.stats["model"] == "hash-grid"
+
+
 def test_siren_initialisation():
     omega = 30.0
     model = rj.RiftS(width=64, depth=3, omega_0=omega, key=jax.random.key(0))
@@ -251,6 +278,50 @@ def test_paper_recipe_runs_with_a_fixed_gain(tiny):
     # the gain stays 1 on the normalised data: in the scene's units it is the data's scale
     scale = rj.synthesize(scene, train, radar).scale
     assert complex(result.field.gain) == pytest.approx(scale, rel=1e-5)
+
+
+def test_a_least_squares_start_begins_at_its_image(tiny):
+    """``init="fista"``: FISTA runs on the same operator and data, and the fresh INR is
+    fitted to its image before training; with a tiny learning rate the result is that
+    image. A wrong name, or a holdout the start would see, is refused."""
+    radar, scene, train, _ = tiny
+    common = dict(radar=radar, method="rift-n", granularity=0.5, support=None, progress=False)
+    fista = rj.fit(scene, train, method="fista", radar=radar, granularity=0.5, support=None,
+                   progress=False)  # fmt: skip
+    started = rj.fit(scene, train, init="fista", epochs=2, learning_rate=1e-9, **common)
+    warm = started.stats["warm_start"]
+    assert warm["method"] == "fista" and warm["image_error"] < 0.1  # 0.06 measured
+    assert warm["residual"] == pytest.approx(fista.history.residual.min(), rel=1e-4)
+    image, ours = np.asarray(fista.scene.reflectivity), np.asarray(started.scene.reflectivity)
+    assert np.linalg.norm(ours - image) < 0.1 * np.linalg.norm(image)
+    assert started.stats["collapse"] is None  # a start need not descend: no "flat loss"
+    with pytest.raises(ValueError, match="`init` must be a Field, one of"):
+        rj.fit(scene, train, init="kaczmarz", epochs=2, **common)
+    with pytest.raises(ValueError, match="holdout"):
+        rj.fit(scene, train, init="lsmr", holdout=2, epochs=2, **common)
+
+
+def test_the_sparsity_prior_is_scale_free_and_joins_the_loss(tiny):
+    """`concentration` is ‖ρ‖₁/(√k‖ρ‖₂) over live points: 1 flat, 1/√k for one point,
+    whatever the scale; ``sparsity`` adds it to the loss, and 0 leaves training as it was."""
+    from rift_jax._solvers.inr.training import concentration
+
+    flat = jnp.full(16, 3.0 - 2.0j)
+    assert float(concentration(flat, None)) == pytest.approx(1.0)
+    one = jnp.zeros(16, jnp.complex64).at[3].set(5.0)
+    assert float(concentration(one, None)) == pytest.approx(0.25)
+    live = jnp.arange(16) < 4  # padding (not live) is left out, whatever it holds
+    assert float(concentration(flat.at[5:].set(100.0), live)) == pytest.approx(1.0)
+    assert float(concentration(10 * one, None)) == pytest.approx(0.25)
+    radar, scene, train, _ = tiny
+    common = dict(radar=radar, method="rift-n", granularity=0.5, epochs=2, progress=False)
+    plain = rj.fit(scene, train, **common)
+    zero = rj.fit(scene, train, sparsity=0.0, **common)
+    np.testing.assert_array_equal(plain.history.loss, zero.history.loss)
+    prior = rj.fit(scene, train, sparsity=0.5, **common)
+    assert prior.history.loss[0] > plain.history.loss[0]  # same start, a term more
+    with pytest.raises(ValueError, match="sparsity"):
+        rj.solvers.Recipe(sparsity=-0.1)
 
 
 def test_bad_input(tiny):

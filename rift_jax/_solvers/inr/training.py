@@ -98,9 +98,7 @@ def train(
                 f"{where}: `init={warm!r}` and `holdout` cannot go together: the "
                 "least-squares start would see the held-out viewpoints."
             )
-        field, started = warm_start(
-            warm, operator, signal, field, coords, seed=seed, learning_rate=recipe.learning_rate
-        )
+        field, started = warm_start(warm, operator, signal, field, coords, seed=seed)
         init = field  # from here on, as a given field
     if recipe.gain and init is None:
         seen = (fn, signal) if not len(held) else (fn.subset(trained_views), signal[trained_views])

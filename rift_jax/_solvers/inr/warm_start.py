@@ -34,10 +34,10 @@ def warm_start(
     coords: Float[Array, "n 3"],
     *,
     seed: int,
-    learning_rate: float,
 ) -> tuple[Field, dict]:
     """``field`` (a fresh INR) fitted to ``method``'s least-squares image on the operator's
-    points ``coords``; and stats: the solver's residual and the fit's relative error."""
+    points ``coords``, at the model's own learning rate (whatever the recipe's for training
+    through the GRT); and stats: the solver's residual and the fit's relative error."""
     seeded = {"seed": seed} if method == "fista" else {}  # FISTA's power iteration
     solution = WARM_STARTS[method](operator, signal, progress=False, **seeded)
     image = np.asarray(gathered(solution.rho))
@@ -48,7 +48,7 @@ def warm_start(
         return field, stats | {"image_error": 1.0}
     field = Field(field.model, field.extent, peak)
     model, error = _fit_image(
-        field, coords, jnp.asarray(image / peak), jnp.asarray(live), learning_rate
+        field, coords, jnp.asarray(image / peak), jnp.asarray(live), field.model.learning_rate
     )
     return eqx.tree_at(lambda f: f.model, field, model), stats | {"image_error": float(error)}
 
