@@ -166,7 +166,9 @@ class HashGrid(AbstractINR):
                 f"HashGrid: `finest` must be an int ≥ `coarsest` ({coarsest}), got {finest!r}."
             )
         growth = (finest / coarsest) ** (1 / max(levels - 1, 1))
-        self.resolutions = tuple(int(coarsest * growth**level) for level in range(levels))
+        # rounded, and the last level exactly `finest` (float growth could miss it by one)
+        resolutions = [round(coarsest * growth**level) for level in range(levels - 1)]
+        self.resolutions = (*resolutions, finest) if levels > 1 else (coarsest,)
         keys = jax.random.split(key, depth + 2)
         self.tables = jax.random.uniform(keys[0], (levels, table_size, features),
                                          minval=-1e-4, maxval=1e-4)  # fmt: skip
@@ -204,7 +206,8 @@ class HashGrid(AbstractINR):
 
 
 # the 8 corners of a cell, as offsets from its lowest one
-_CORNERS = jnp.asarray([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], jnp.uint32)
+# (NumPy, not jnp: a jnp constant at import would start JAX's backend)
+_CORNERS = np.asarray([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], np.uint32)
 
 MODELS = {"rift-n": RiftN, "rift-s": RiftS, "hash-grid": HashGrid}
 

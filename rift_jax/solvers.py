@@ -6,6 +6,7 @@ from ._solvers import CollapseWarning as CollapseWarning
 from ._solvers import Diverged as Diverged
 from ._solvers import History as History
 from ._solvers import Outcome as Outcome
+from ._solvers import Patience as Patience
 from ._solvers import Recipe as Recipe
 from ._solvers import Solution as Solution
 from ._solvers import Stop as Stop
@@ -28,6 +29,7 @@ __all__ = [
     "History",
     "Stop",
     "Outcome",
+    "Patience",
     "Diverged",
     "CollapseWarning",
     "diagnose",

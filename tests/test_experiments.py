@@ -15,7 +15,15 @@ import pytest
 from conftest import compilations
 
 import rift_jax as rj
-from experiments import complex_scenes, mismatch, runner, simple_scenes, stability, weak_target
+from experiments import (
+    complex_scenes,
+    mismatch,
+    rift_ideas,
+    runner,
+    simple_scenes,
+    stability,
+    weak_target,
+)
 from experiments.runner import write_atomic
 
 FILES = ("results.json", "results.md", "reconstructions.npz")
@@ -475,3 +483,21 @@ def test_release_compiled_programs_drops_them_near_the_mapping_limit(caplog):
     assert compilations(caplog, lambda: twice(jnp.ones(3))) == []
     assert runner.release_compiled_programs(share=0.0)
     assert compilations(caplog, lambda: twice(jnp.ones(3)))
+
+
+def test_rift_ideas_run_on_their_stress_grid_cells_data():
+    """Every idea runs beside the RIFT(N) run of its stress-grid cell, on the same data
+    (scene, views, noise, seed) with one option more, and its label names its variant."""
+    cfg = rift_ideas.SCALES["default"]
+    runs = rift_ideas.runs(cfg)
+    grid = {(r.scene, r.label): r for r in stability.runs(stability.SCALES["default"])}
+    assert len(runs) == 10 * 2 * len(rift_ideas.VARIANTS)  # scenes × (10, 30 views)
+    for run in runs:
+        variant = rift_ideas.variant({"run": run.label})
+        assert variant in rift_ideas.VARIANTS
+        assert run.n_train in (10, 30) and run.options["snr_db"] == rift_ideas.SNR
+        base = run.label.replace(variant, "FISTA" if variant == "FISTA" else "RIFT(N)", 1)
+        plain = grid[run.scene, base]  # the stress grid's own run of that cell
+        assert (plain.n_train, plain.seed) == (run.n_train, run.seed)
+        extra = rift_ideas.IDEAS.get(variant, {})
+        assert run.options == plain.options | extra

@@ -302,17 +302,20 @@ def test_a_least_squares_start_begins_at_its_image(tiny):
 
 
 def test_the_sparsity_prior_is_scale_free_and_joins_the_loss(tiny):
-    """`concentration` is ‖ρ‖₁/(√k‖ρ‖₂) over live points: 1 flat, 1/√k for one point,
-    whatever the scale; ``sparsity`` adds it to the loss, and 0 leaves training as it was."""
+    """`concentration` is ‖ρ‖₁/(√k‖ρ‖₂) over live points of a field on k: 1 flat, 1/√k
+    for one point, whatever the scale; ``sparsity`` adds it to the loss, and 0 leaves
+    training as it was."""
     from rift_jax._solvers.inr.training import concentration
 
     flat = jnp.full(16, 3.0 - 2.0j)
-    assert float(concentration(flat, None)) == pytest.approx(1.0)
+    assert float(concentration(flat, None, 16)) == pytest.approx(1.0)
     one = jnp.zeros(16, jnp.complex64).at[3].set(5.0)
-    assert float(concentration(one, None)) == pytest.approx(0.25)
+    assert float(concentration(one, None, 16)) == pytest.approx(0.25)
+    assert float(concentration(10 * one, None, 16)) == pytest.approx(0.25)
     live = jnp.arange(16) < 4  # padding (not live) is left out, whatever it holds
-    assert float(concentration(flat.at[5:].set(100.0), live)) == pytest.approx(1.0)
-    assert float(concentration(10 * one, None)) == pytest.approx(0.25)
+    assert float(concentration(flat.at[5:].set(100.0), live, 4)) == pytest.approx(1.0)
+    # an active set of 4 of 16 candidates: the field as if 0 on the other 12
+    assert float(concentration(flat[:4], None, 16)) == pytest.approx(0.5)
     radar, scene, train, _ = tiny
     common = dict(radar=radar, method="rift-n", granularity=0.5, epochs=2, progress=False)
     plain = rj.fit(scene, train, **common)

@@ -7,6 +7,7 @@ returns a `Solution` (ρ on the operator's grid and a per-iteration `History`).
 from ._solution import Diverged as Diverged
 from ._solution import History as History
 from ._solution import Outcome as Outcome
+from ._solution import Patience as Patience
 from ._solution import Solution as Solution
 from ._solution import Stop as Stop
 from .inr import RECIPES as RECIPES

@@ -191,6 +191,7 @@ def iterate(
     then: Callable[[Any, int], tuple[Any, int] | None] | None = None,
     finish: Callable[[Run], Solution] = Run.solution,
     hint: str = "",
+    with_loss: bool = False,
 ) -> Run:
     """Call ``carry, record = step(carry)`` up to ``iterations`` times and return the best
     iterate as a `Run`: the one loop, progress bar, stopping rule and divergence path of
@@ -211,7 +212,8 @@ def iterate(
     ``current()`` giving ``shown(best)`` (default the best itself); the time it takes is
     left out of ``seconds`` and of the history, and if it returns True the run ends there
     (`Outcome.STOPPED`).
-    A non-finite residual or a record's ``failure`` raises `Diverged` naming the
+    ``with_loss``: the history keeps the records' losses (RIFT's).
+    A non-finite bare residual or a record's ``failure`` raises `Diverged` naming the
     iteration (a ``unit``: "epoch" for RIFT) and ``hint``; its ``.solution`` is ``finish``
     of the run before it. The progress bar appears only for runs longer than two seconds.
     """
@@ -222,7 +224,7 @@ def iterate(
     stopped = None
 
     def run(stop: Stop, n: int) -> Run:
-        loss = np.asarray(losses[:n]) if losses else None
+        loss = np.asarray(losses[:n]) if with_loss else None
         history = History(np.asarray(residuals[:n]), np.asarray(seconds[:n]), loss)
         return Run(best, history, stop, {"best": best_index})
 
@@ -232,12 +234,13 @@ def iterate(
         while k < iterations:
             k += 1
             carry, record = step(carry)
-            if not isinstance(record, Record):
+            failure = None
+            if not isinstance(record, Record):  # a bare residual: finite, or diverged
                 record = Record(float(jax.block_until_ready(record)))
+                if not np.isfinite(record.residual):
+                    failure = f"the data residual became {record.residual}"
             seconds.append(time.perf_counter() - start)
-            failure = record.failure
-            if failure is None and not np.isfinite(record.residual):
-                failure = f"the data residual became {record.residual}"
+            failure = failure or record.failure
             if failure is not None:
                 kept = "the start" if best_index is None else f"{unit} {best_index + 1}"
                 raise Diverged(
@@ -275,5 +278,6 @@ def iterate(
                     break
                 carry, more = going_on
                 iterations = k + more
+                reference, improved = math.inf, k  # the next stage's patience, from here
                 bar.total = iterations
     return run(stopped or Stop(Outcome.BUDGET, k), k)

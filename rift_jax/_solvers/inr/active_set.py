@@ -30,6 +30,7 @@ class Candidates:
         # the points that exist: an operator padded to a shared size (`grt_operator`'s
         # pad_to) holds copies of one of them, which must never join an active set
         self.live = fn.live_points()
+        self.n_live = int(self.live.sum())
         self.coords = jnp.asarray(points, jnp.float32)
         self.tree = scipy.spatial.cKDTree(points)
         if len(points) > 1:  # neighbours: within √3 spacings (the 26 around a grid point)

@@ -21,7 +21,7 @@ class Recipe:
     - `epochs`: passes over the training viewpoints.
     - `learning_rate`, `weight_decay`, `adam_eps`: `optax.adamw`'s (weight decay applies to
       the INR, not to the gain). ``learning_rate=None`` takes the model's own default
-      (`AbstractINR.learning_rate`: 1e-2 for RiftN, 1e-3 for RiftS).
+      (`AbstractINR.learning_rate`: 1e-2 for RiftN and HashGrid, 1e-3 for RiftS).
     - `halve_every`: halve the learning rate every this many epochs, a fraction allowed
       (counted in optimizer steps, at least one; None: constant).
     - `batch_views`: viewpoints per optimizer step (None: all, one step per epoch). An epoch
@@ -29,9 +29,11 @@ class Recipe:
       the last batch is filled up with the epoch's first viewpoints.
     - `clip_norm`: clip the gradient to this global norm (None: no clipping).
     - `gain`: learn the global complex gain, started where the initial field's signals have
-      the data's energy (False: fixed at 1, as the paper).
-    - `patience`: stop early when the epoch's mean training loss has not improved on the best
-      so far by a relative `min_improvement` for this many epochs (default 10, so that
+      the data's energy (False: fixed where it starts, 1 as in the paper, or an `init`
+      field's own).
+    - `patience`: stop early once this many epochs in a row have not lowered the epoch's
+      mean training loss below ``1 - min_improvement`` times its value at the last epoch
+      that did (`rift_jax.solvers` `Patience`, the least-squares solvers' rule; default 10, so that
       `epochs` is a budget: "until converged, at most N"; None: run every epoch, as the
       paper). The run then ends with ``Outcome.CONVERGED``, as the least-squares solvers
       do, and keeps the best parameters. At the paper's scale the loss is flat after ~20 of
@@ -52,7 +54,10 @@ class Recipe:
       follow it instead of the training loss: early stopping on unseen data. 0: none.
     - `sparsity`: weight of a sparsity prior added to the loss: ‖ρ‖₁ / (√k‖ρ‖₂) over the
       k trained points, which ignores scale (1 for a flat field, 1/√k for one point), so
-      that the weight means the same on any data. 0 (default): none, as the paper.
+      that the weight means the same on any data (an active set's k is the stage's
+      candidate points, so the term does not jump when the set changes). The loss that
+      picks the best epoch and drives `patience` includes it. 0 (default): none, as the
+      paper.
     - `retries`: how many times a collapsed run is retried from a fresh start at half the
       learning rate (see `rift`, "Collapse"). 0: never.
     """

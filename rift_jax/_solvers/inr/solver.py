@@ -15,7 +15,7 @@ from .._solution import Monitor, Outcome, Solution
 from .collapse import CollapseWarning, check_collapse
 from .recipe import Recipe, resolve
 from .training import train
-from .warm_start import WARM_STARTS
+from .warm_start import WARM_STARTS, least_squares_start
 
 
 def rift(
@@ -24,8 +24,8 @@ def rift(
     *,
     model: str | AbstractINR = "rift-n",
     recipe: str | Recipe = "default",
-    width: int = 64,
-    depth: int = 4,
+    width: int | None = None,
+    depth: int | None = None,
     init: Field | str | None = None,
     extent: float | None = None,
     fine_points: Float[np.ndarray, "k 3"] | None = None,
@@ -40,9 +40,11 @@ def rift(
     **Arguments:**
 
     - `operator`, `signal`, `progress`: as `kaczmarz`.
-    - `model`: ``"rift-n"`` (`RiftN`), ``"rift-s"`` (`RiftS`), or an `AbstractINR` instance.
+    - `model`: ``"rift-n"`` (`RiftN`), ``"rift-s"`` (`RiftS`), ``"hash-grid"``
+      (`HashGrid`), or an `AbstractINR` instance.
     - `recipe`: ``"default"``, ``"paper"`` or a `Recipe`.
-    - `width`, `depth`: the INR's size when `model` is a name.
+    - `width`, `depth`: the INR's size when `model` is a name (None: the model's own
+      defaults, 64 and 4 for RiftN and RiftS, 64 and 2 for HashGrid).
     - `init`: a `Field` to start from (e.g. a previous result's): a warm start, with a fresh
       optimizer state and learning-rate schedule. Its model must be of the kind `model`
       names (or `model` may be left as is when it is an instance). Or ``"fista"`` /
@@ -101,7 +103,13 @@ def rift(
                 f"{where}: `init` must be a Field, one of {sorted(WARM_STARTS)} (a least-"
                 f"squares start) or None, got {init!r}."
             )
-        warm, init = init, None
+        if recipe.holdout:
+            raise ValueError(
+                f"{where}: `init={init!r}` and `holdout` cannot go together: the "
+                "least-squares start would see the held-out viewpoints."
+            )
+        warm = least_squares_start(init, operator, signal, seed=seed)
+        init = None
     one_run = functools.partial(
         train, operator, signal, where=where, name=name, model=model, width=width,
         depth=depth, init=init, warm=warm, extent=extent, fine_points=fine_points,

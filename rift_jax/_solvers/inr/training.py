@@ -30,7 +30,7 @@ from .._solution import Monitor, Patience, Record, Run, Solution, iterate
 from .active_set import Candidates, StepPoints
 from .optimizer import optimizer_for
 from .recipe import Recipe
-from .warm_start import warm_start
+from .warm_start import Start, fitted
 
 
 class _Epochs(NamedTuple):
@@ -56,10 +56,10 @@ def train(
     name: str,
     model,
     recipe: Recipe,
-    width: int,
-    depth: int,
+    width: int | None,
+    depth: int | None,
     init: Field | None,
-    warm: str | None,
+    warm: Start | None,
     extent: float | None,
     fine_points,
     fine_epochs: int | None,
@@ -91,14 +91,9 @@ def train(
     field = initial_field(where, model, init, width, depth, extent, seed)
     if recipe.learning_rate is None:
         recipe = dataclasses.replace(recipe, learning_rate=field.model.learning_rate)
-    started = None  # a least-squares start: how it went
-    if warm is not None:
-        if len(held):
-            raise ValueError(
-                f"{where}: `init={warm!r}` and `holdout` cannot go together: the "
-                "least-squares start would see the held-out viewpoints."
-            )
-        field, started = warm_start(warm, operator, signal, field, coords, seed=seed)
+    started = None if warm is None else dict(warm.stats)  # a least-squares start: how it went
+    if warm is not None and warm.image is not None:
+        field, started["image_error"] = fitted(field, coords, warm, fn.live_points())
         init = field  # from here on, as a given field
     if recipe.gain and init is None:
         seen = (fn, signal) if not len(held) else (fn.subset(trained_views), signal[trained_views])
@@ -131,9 +126,10 @@ def train(
 
     fine_from = [None]  # the first epoch on the fine points, once there is one
 
-    def epoch(state: _Epochs) -> tuple[_Epochs, Record]:
+    def one_epoch(state: _Epochs) -> tuple[_Epochs, Record]:
         k = state.epoch + 1
-        candidates, active, step_points, stage_start = state[3:7]
+        candidates, active = state.candidates, state.active
+        step_points, stage_start = state.points, state.stage_start
         current = eqx.combine(state.params, static)
         fresh = k == state.switch
         if fresh:  # coarse to fine: same parameters and optimizer state
@@ -164,7 +160,7 @@ def train(
             before = params
             params, opt_state, loss, ok, residual = _step(
                 params, opt_state, static, optimizer, recipe.loss_fn, step_points, signal,
-                indices[i], sparsity=recipe.sparsity,
+                indices[i], sparsity=float(recipe.sparsity), over=candidates.n_live,
             )  # fmt: skip
             step_losses.append(loss)
             finite.append(ok)
@@ -238,7 +234,7 @@ def train(
     if recipe.patience is not None:
         patience = Patience(recipe.patience, recipe.min_improvement)
     run = iterate(
-        epoch,
+        one_epoch,
         start,
         iterations=recipe.epochs,
         until=patience,
@@ -252,6 +248,7 @@ def train(
         then=fine_after_coarse if switch is not None else None,
         finish=result,
         hint="Try a lower learning_rate or a clip_norm.",
+        with_loss=True,
     )
     return result(run)
 
@@ -295,7 +292,8 @@ def initial_field(where, model, init, width, depth, extent, seed) -> Field:
     if isinstance(model, str):
         if model not in MODELS:
             raise ValueError(f"{where}: unknown `model` {model!r}; choose one of {sorted(MODELS)}.")
-        model = MODELS[model](width=width, depth=depth, key=jax.random.key(seed))
+        sizes = {k: v for k, v in (("width", width), ("depth", depth)) if v is not None}
+        model = MODELS[model](**sizes, key=jax.random.key(seed))
     elif not isinstance(model, AbstractINR):
         raise ValueError(
             f"{where}: `model` must be a name or an AbstractINR, got {type(model).__name__}."
@@ -335,12 +333,12 @@ def _residual(params, static, points: StepPoints, signal, index) -> Float[Array,
 @exact_jit
 def _step(
     params, opt_state, static, optimizer, loss_fn, points: StepPoints, signal, index,
-    sparsity: float = 0.0,
+    sparsity: float = 0.0, over: int = 1,
 ):  # fmt: skip
     """One optimizer step on the viewpoints ``index``: (params, state, loss, all gradients
     finite, ‖y_b − A_b ρ‖²). The loss is the data term, plus ``sparsity`` times
-    `concentration` of ρ when it is not 0 (a static setting: without it, the program is the same
-    as before the term existed)."""
+    `concentration` of ρ over the stage's ``over`` live candidate points when it is not 0
+    (static settings: without the term, the program is the same as before it existed)."""
     rows = points.fn.subset(index)
     target = signal[index]
 
@@ -349,7 +347,7 @@ def _step(
         pred = as_complex(realified(rows)(as_pair(rho)))
         loss = loss_fn(pred, target)
         if sparsity:
-            loss = loss + sparsity * concentration(rho, points.fn.live)
+            loss = loss + sparsity * concentration(rho, points.fn.live, over)
         return loss, pred
 
     (loss, pred), grads = eqx.filter_value_and_grad(objective, has_aux=True)(params)
@@ -359,10 +357,11 @@ def _step(
     return eqx.apply_updates(params, updates), opt_state, loss, finite, residual
 
 
-def concentration(rho: Complex[Array, " k"], live) -> Float[Array, ""]:
-    """‖ρ‖₁ / (√k‖ρ‖₂) over the k live points: a sparsity measure that ignores scale (the
-    gain carries it), 1 for a flat field and 1/√k for a single point."""
+def concentration(rho: Complex[Array, " n"], live, k: int) -> Float[Array, ""]:
+    """‖ρ‖₁ / (√k‖ρ‖₂) over the live entries of ``rho``, for a field on k points (the
+    stage's candidates) that is 0 off these entries (an active set's): a sparsity measure
+    that ignores scale (the gain carries it), 1 for a flat field on all k and 1/√k for a
+    single point, and that does not jump when the active set changes."""
     magnitude = jnp.abs(rho) if live is None else jnp.where(live, jnp.abs(rho), 0)
-    k = magnitude.size if live is None else jnp.sum(live)
     norm = jnp.sqrt(k * jnp.sum(magnitude**2))
     return jnp.sum(magnitude) / jnp.maximum(norm, jnp.finfo(jnp.float32).tiny)

@@ -1,12 +1,15 @@
 """A field started from a least-squares image: RIFT's ``init="fista"`` / ``init="lsmr"``.
 
-The least-squares solver runs on the same operator (the same points, support and data);
-the INR is then fitted to its image point by point (complex MSE, full batch, Adam), with
-the gain fixed at the image's peak so that the INR's bounded output spans it. Training
-through the GRT then starts there, as from any `init` field.
+The least-squares solver runs once on the same operator (the same points, support and
+data); each training attempt then fits its fresh INR to that image point by point
+(complex MSE, full batch, Adam), with the gain fixed at the image's peak so that the INR's
+bounded output spans it. Training through the GRT starts there, as from any `init` field.
 """
 
 from __future__ import annotations
+
+import dataclasses
+import time
 
 import equinox as eqx
 import jax
@@ -26,31 +29,44 @@ WARM_STARTS = {"fista": fista, "lsmr": lsmr}
 _STEPS = 500  # Adam steps fitting the INR to the image (full batch: each costs one render)
 
 
-def warm_start(
-    method: str,
-    operator: GRTOperator,
-    signal,
-    field: Field,
-    coords: Float[Array, "n 3"],
-    *,
-    seed: int,
-) -> tuple[Field, dict]:
-    """``field`` (a fresh INR) fitted to ``method``'s least-squares image on the operator's
-    points ``coords``, at the model's own learning rate (whatever the recipe's for training
-    through the GRT); and stats: the solver's residual and the fit's relative error."""
+@dataclasses.dataclass(frozen=True)
+class Start:
+    """A least-squares image to start from (on the operator's points; None when the solver
+    returned ρ = 0, which leaves nothing to start from) and ``stats``: the method, its
+    residual and its seconds."""
+
+    image: np.ndarray | None
+    stats: dict
+
+
+def least_squares_start(method: str, operator: GRTOperator, signal, *, seed: int) -> Start:
+    """``method``'s image (with its defaults) on the operator's points."""
+    began = time.perf_counter()
     seeded = {"seed": seed} if method == "fista" else {}  # FISTA's power iteration
     solution = WARM_STARTS[method](operator, signal, progress=False, **seeded)
     image = np.asarray(gathered(solution.rho))
+    stats = {
+        "method": method,
+        "residual": float(solution.history.residual.min(initial=1.0)),
+        "seconds": time.perf_counter() - began,
+    }
     live = operator.fn.live_points()
-    peak = float(np.abs(image[live]).max(initial=0.0))
-    stats = {"method": method, "residual": float(solution.history.residual.min(initial=1.0))}
-    if peak == 0:  # nothing to start from: the fresh field, as without a warm start
-        return field, stats | {"image_error": 1.0}
+    return Start(image if np.abs(image[live]).max(initial=0.0) > 0 else None, stats)
+
+
+def fitted(
+    field: Field, coords: Float[Array, "n 3"], start: Start, live: np.ndarray
+) -> tuple[Field, float]:
+    """``field`` (a fresh INR) fitted to ``start.image`` on the live points of ``coords``,
+    at the model's own learning rate (whatever the recipe's for training through the GRT),
+    and the fit's relative error."""
+    peak = float(np.abs(start.image[live]).max())
     field = Field(field.model, field.extent, peak)
     model, error = _fit_image(
-        field, coords, jnp.asarray(image / peak), jnp.asarray(live), field.model.learning_rate
-    )
-    return eqx.tree_at(lambda f: f.model, field, model), stats | {"image_error": float(error)}
+        field, coords, jnp.asarray(start.image / peak), jnp.asarray(live),
+        field.model.learning_rate,
+    )  # fmt: skip
+    return eqx.tree_at(lambda f: f.model, field, model), float(error)
 
 
 @exact_jit
