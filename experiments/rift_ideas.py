@@ -31,10 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-import rift_jax as rj
-
 from . import stability
-from .runner import Run, build_scene, command, environment_line, execute, write_atomic
+from .runner import Run, command, environment_line, write_atomic
 
 IDEAS = {
     "RIFT(N)+LS start": {"init": "fista"},
@@ -125,25 +123,11 @@ def main(
     resume: bool = False,
     progress: bool = True,
 ) -> dict:
-    asked = runs(cfg)
-    scenes = {name: build_scene(name, cfg.forward, cfg.extent) for name in cfg.scenes}
-    radar = rj.Radar(n_frequencies=cfg.n_frequencies, n_tx=cfg.n_antennas, n_rx=cfg.n_antennas)
-    results = execute(
-        "rift_ideas",
-        scale,
-        cfg,
-        scenes,
-        asked,
-        pool=rj.Viewpoints.grid(),
-        radar=radar,
-        inverse=cfg.inverse,
-        n_test=cfg.n_test,
-        seed=seed,
-        out=Path(out),
-        report=lambda *args: report(*args, cfg, Path(out)),
-        resume=resume,
+    """Every run of ``cfg``'s cells studied; the results dict as in ``out/results.json``."""
+    results = stability.on_the_grid(
+        "rift_ideas", cfg, runs(cfg), report, out=out, scale=scale, seed=seed, resume=resume,
         progress=progress,
-    )
+    )  # fmt: skip
     print(f"{len(results['rows'])} runs; wrote results.md, results.json to {out}/")
     return results
 

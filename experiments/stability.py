@@ -398,6 +398,41 @@ def _figure(rows: list[dict], cfg: Config, path: Path) -> None:
     plt.close(fig)
 
 
+def on_the_grid(
+    name: str,
+    cfg: Config,
+    asked: list[Run],
+    report,
+    *,
+    out: Path,
+    scale: str,
+    seed: int,
+    resume: bool,
+    progress: bool,
+) -> dict:
+    """`execute` the runs ``asked`` on the stress grid's scenes, radar, grids and views of
+    ``cfg`` (the stress grid's, or a study of its cells), with ``report(results, volumes,
+    figures, cfg, out)``."""
+    scenes = {scene: build_scene(scene, cfg.forward, cfg.extent) for scene in cfg.scenes}
+    radar = rj.Radar(n_frequencies=cfg.n_frequencies, n_tx=cfg.n_antennas, n_rx=cfg.n_antennas)
+    return execute(
+        name,
+        scale,
+        cfg,
+        scenes,
+        asked,
+        pool=rj.Viewpoints.grid(),
+        radar=radar,
+        inverse=cfg.inverse,
+        n_test=cfg.n_test,
+        seed=seed,
+        out=Path(out),
+        report=lambda *args: report(*args, cfg, Path(out)),
+        resume=resume,
+        progress=progress,
+    )
+
+
 def main(
     cfg: Config,
     *,
@@ -409,24 +444,10 @@ def main(
 ) -> dict:
     """Every run of ``cfg``; the results dict as written to ``out/results.json``, with
     ``failures`` (an integer: the target is 0)."""
-    scenes = {name: build_scene(name, cfg.forward, cfg.extent) for name in cfg.scenes}
-    radar = rj.Radar(n_frequencies=cfg.n_frequencies, n_tx=cfg.n_antennas, n_rx=cfg.n_antennas)
-    results = execute(
-        "stability",
-        scale,
-        cfg,
-        scenes,
-        runs(cfg),
-        pool=rj.Viewpoints.grid(),
-        radar=radar,
-        inverse=cfg.inverse,
-        n_test=cfg.n_test,
-        seed=seed,
-        out=Path(out),
-        report=lambda *args: report(*args, cfg, Path(out)),
-        resume=resume,
+    results = on_the_grid(
+        "stability", cfg, runs(cfg), report, out=out, scale=scale, seed=seed, resume=resume,
         progress=progress,
-    )
+    )  # fmt: skip
     # the last report judged every row; results.json, written just before it, gets the verdicts
     results["failures"] = sum(bool(r["failed"]) for r in results["rows"])
     write_json(Path(out) / "results.json", results)
