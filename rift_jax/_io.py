@@ -31,7 +31,7 @@ import numpy as np
 
 from ._fit import FitResult
 from ._geometry import C0, Radar, Viewpoints, antenna_positions
-from ._models import Field, RiftN, RiftS
+from ._models import Field, HashGrid, RiftN, RiftS
 from ._scenes import Scene
 from ._solvers import History, Outcome, Recipe, Stop
 from ._synthesis import PointScatterers, RadarData
@@ -438,23 +438,38 @@ def _decode_result(content: dict, take: _Arrays, path: str) -> FitResult:
 # RIFT's models: the sizes that rebuild each one's skeleton, so that the stored weights
 # can be put back into it (as eqx.tree_deserialise_leaves does; here each weight is a named
 # array, readable by other tools, and checked against the skeleton's shape and dtype).
-_MODELS = {"RiftN": RiftN, "RiftS": RiftS}
+_MODELS = {"RiftN": RiftN, "RiftS": RiftS, "HashGrid": HashGrid}
 
 
 def _model_record(model) -> dict:
-    if type(model) not in (RiftN, RiftS):
+    if type(model) not in _MODELS.values():
         raise ValueError(
             f"save: a FitResult's field or options hold a {type(model).__name__} model; only "
-            "RiftN and RiftS are saved (their sizes rebuild the model to load the weights into)."
+            f"{', '.join(_MODELS)} are saved (their sizes rebuild the model to load the "
+            "weights into)."
         )
     record = {
         "model": type(model).__name__,
         "width": int(model.output.in_features),
         "depth": len(model.hidden),
     }
+    return record | _settings(model)
+
+
+def _settings(model) -> dict:
+    """What, beside width and depth, rebuilds ``model``'s skeleton."""
     if isinstance(model, RiftN):
-        return record | {"negative_slope": model.negative_slope}
-    return record | {"omega_0": model.omega_0}
+        return {"negative_slope": model.negative_slope}
+    if isinstance(model, RiftS):
+        return {"omega_0": model.omega_0}
+    levels, table_size, features = model.tables.shape
+    return {
+        "levels": levels,
+        "features": features,
+        "table_size": table_size,
+        "coarsest": model.resolutions[0],
+        "finest": model.resolutions[-1],
+    }
 
 
 def _weights(module) -> list[tuple[str, Any]]:
@@ -464,7 +479,7 @@ def _weights(module) -> list[tuple[str, Any]]:
 
 
 def _encode_module(module, name: str, arrays: dict) -> dict:
-    """A `Field` or a RiftN / RiftS: the sizes that rebuild it, its weights into ``arrays``."""
+    """A `Field` or an INR: the sizes that rebuild it, its weights into ``arrays``."""
     if isinstance(module, Field):
         record = {"kind": "Field", "extent": module.extent, **_model_record(module.model)}
     else:
@@ -484,10 +499,9 @@ def _decode_module(record: dict, take: _Arrays, path: str):
             f"load: `path` {path!r} holds a model {get('model')!r}; rift_jax "
             f"rebuilds {sorted(_MODELS)}."
         )
-    option = "negative_slope" if cls is RiftN else "omega_0"
-    model = cls(
-        width=get("width"), depth=get("depth"), key=jax.random.key(0), **{option: get(option)}
-    )
+    skeleton = cls(width=get("width"), depth=get("depth"), key=jax.random.key(0))
+    settings = {name: get(name) for name in _settings(skeleton)}
+    model = cls(width=get("width"), depth=get("depth"), key=jax.random.key(0), **settings)
     skeleton = Field(model, get("extent")) if get("kind") == "Field" else model
     weights, static = eqx.partition(skeleton, eqx.is_array)
     flat, treedef = jax.tree_util.tree_flatten_with_path(weights)
@@ -541,12 +555,12 @@ def _encode_value(value, name: str, arrays: dict):
     if isinstance(value, Recipe):
         fields = {f.name: getattr(value, f.name) for f in dataclasses.fields(Recipe)}
         return {"$recipe": _encode_value(fields, name, arrays)}
-    if isinstance(value, Field | RiftN | RiftS):
+    if isinstance(value, Field | RiftN | RiftS | HashGrid):
         return {"$module": _encode_module(value, name, arrays)}
     raise ValueError(
         f"save: `{name}` is a {type(value).__name__}, which a file cannot hold (only numbers, "
-        "strings, lists, dicts, arrays, Recipes, Fields and RiftN / RiftS models); give the "
-        "result other options with dataclasses.replace(result, options=...)."
+        "strings, lists, dicts, arrays, Recipes, Fields and RiftN / RiftS / HashGrid models); "
+        "give the result other options with dataclasses.replace(result, options=...)."
     )
 
 

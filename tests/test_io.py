@@ -230,6 +230,16 @@ def test_fit_results_round_trip_exactly_with_their_field(reference, tmp_path, su
             "recipe": rj.solvers.Recipe(epochs=5, halve_every=None, patience=2),
             "init": field,
             "model": siren,
+            "hash": rj.HashGrid(
+                width=4,
+                depth=1,
+                levels=3,
+                features=2,
+                table_size=16,
+                coarsest=2,
+                finest=7,
+                key=jax.random.key(3),
+            ),  # fmt: skip
             "x0": np.arange(4, dtype=np.complex64),
             "fine_points": rng.uniform(-1, 1, (6, 3)),
             "shape": (8, 2),
