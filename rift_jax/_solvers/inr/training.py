@@ -124,8 +124,6 @@ def train(
     step_points = candidates.restricted(active)
     start = _Epochs(0, params, opt_state, candidates, active, step_points, 1, switch)
 
-    fine_from = [None]  # the first epoch on the fine points, once there is one
-
     def one_epoch(state: _Epochs) -> tuple[_Epochs, Record]:
         k = state.epoch + 1
         candidates, active = state.candidates, state.active
@@ -133,7 +131,6 @@ def train(
         current = eqx.combine(state.params, static)
         fresh = k == state.switch
         if fresh:  # coarse to fine: same parameters and optimizer state
-            fine_from[0] = k
             candidates = Candidates(fn.on(split(fine_points)), fine_points)
             active = None if recipe.prune is None else candidates.select(current, recipe.prune)
             step_points, stage_start = candidates.restricted(active), k
@@ -184,11 +181,12 @@ def train(
             k, params, opt_state, candidates, active, step_points, stage_start, state.switch
         )
         fine = state.switch is not None and k >= state.switch
+        fine_from = state.switch if fine else None  # the first epoch on the fine points
         return following, Record(
             residual=math.sqrt(float(np.sum(step_residuals)) / energy[batches].sum()),
             measure=measure,
             loss=loss,
-            at=(measured, candidates, active, fine),  # the best's own training set
+            at=(measured, candidates, active, fine_from),  # the best's own training set
             fresh=fresh,
         )
 
@@ -199,7 +197,7 @@ def train(
         return state._replace(switch=k + 1), fine_epochs
 
     def result(run: Run) -> Solution:
-        best_params, trained_on, trained_active, fine = run.best
+        best_params, trained_on, trained_active, fine_from = run.best
         best = eqx.combine(best_params, static)
         index = run.stats["best"]
         measures = holdout_residuals if len(held) else run.history.loss
@@ -223,8 +221,8 @@ def train(
         if started is not None:
             stats["warm_start"] = started
         rho = best.render(coords)
-        if fine:  # the field trained on `fine_points`: `trained` marks which
-            stats |= {"fine_from_epoch": fine_from[0], "active": trained}
+        if fine_from is not None:  # the field trained on `fine_points`: `trained` marks which
+            stats |= {"fine_from_epoch": fine_from, "active": trained}
         elif trained_active is not None:  # what was trained: the field on its active set
             rho = jnp.where(jnp.asarray(trained), rho, 0)
         rho = fn.masked(rho)  # ρ = 0 on an operator's padding, as on any other solver's
@@ -241,7 +239,7 @@ def train(
         progress=progress,
         desc=where,
         unit="epoch",
-        image=lambda state: (state.params, state.candidates, state.active, False),
+        image=lambda state: (state.params, state.candidates, state.active, None),
         start_measure=math.inf,
         monitor=monitor,
         shown=lambda best: eqx.combine(best[0], static),
