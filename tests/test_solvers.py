@@ -61,6 +61,7 @@ def test_history(solutions, name):
 def test_history_lengths(solutions):
     assert len(solutions["kaczmarz"].history) == 150  # sweeps
     assert len(solutions["lsmr"].history) == 6  # checks, every 10 LSMR steps
+    assert solutions["lsmr"].stopped.at == 60  # `stopped` counts LSMR steps, not checks
     assert len(solutions["gauss-newton"].history) == 3
 
 
@@ -112,6 +113,7 @@ def test_tolerance_stops_early(problem):
     )  # checks every 10 steps, as the `solutions` runs do: the same compiled segment
     assert solution.stopped.outcome is rj.solvers.Outcome.CONVERGED
     assert len(solution.history) < 200 // 10  # one entry per check: stopped before the budget
+    assert solution.stopped.at == 10 * len(solution.history)  # in LSMR steps
 
 
 def test_kaczmarz_seeded(problem):

@@ -192,6 +192,7 @@ def iterate(
     finish: Callable[[Run], Solution] = Run.solution,
     hint: str = "",
     with_loss: bool = False,
+    per_step: int = 1,
 ) -> Run:
     """Call ``carry, record = step(carry)`` up to ``iterations`` times and return the best
     iterate as a `Run`: the one loop, progress bar, stopping rule and divergence path of
@@ -213,6 +214,9 @@ def iterate(
     left out of ``seconds`` and of the history, and if it returns True the run ends there
     (`Outcome.STOPPED`).
     ``with_loss``: the history keeps the records' losses (RIFT's).
+    ``per_step``: the solver's iterations in one ``step`` (LSMR's steps between checks):
+    the `Stop`, the divergence message and the monitor count the solver's iterations, the
+    history one entry per step.
     A non-finite bare residual or a record's ``failure`` raises `Diverged` naming the
     iteration (a ``unit``: "epoch" for RIFT) and ``hint``; its ``.solution`` is ``finish``
     of the run before it. The progress bar appears only for runs longer than two seconds.
@@ -242,12 +246,14 @@ def iterate(
             seconds.append(time.perf_counter() - start)
             failure = failure or record.failure
             if failure is not None:
-                kept = "the start" if best_index is None else f"{unit} {best_index + 1}"
+                kept = (
+                    "the start" if best_index is None else f"{unit} {(best_index + 1) * per_step}"
+                )
                 raise Diverged(
-                    f"{desc}: at {unit} {k}, {failure}; the run diverged. The best before it "
-                    f"({kept}) is kept in this error's `.solution` (and `.result` from fit)."
-                    + (f" {hint}" if hint else ""),
-                    finish(run(Stop(Outcome.DIVERGED, k), k - 1)),
+                    f"{desc}: at {unit} {k * per_step}, {failure}; the run diverged. The best "
+                    f"before it ({kept}) is kept in this error's `.solution` (and `.result` "
+                    "from fit)." + (f" {hint}" if hint else ""),
+                    finish(run(Stop(Outcome.DIVERGED, k * per_step), k - 1)),
                 )
             residuals.append(record.residual)
             if record.loss is not None:
@@ -267,17 +273,17 @@ def iterate(
             bar.update()
             if monitor is not None:
                 current = functools.partial(shown, best)
-                looked, stop = call_monitor(monitor, k, seconds[-1], current)
+                looked, stop = call_monitor(monitor, k * per_step, seconds[-1], current)
                 start += looked
                 if stop:
-                    stopped = Stop(Outcome.STOPPED, k)
+                    stopped = Stop(Outcome.STOPPED, k * per_step)
                     break
             if until is not None and k - improved >= until.iterations:
                 if then is None or (going_on := then(carry, k)) is None:
-                    stopped = Stop(Outcome.CONVERGED, k)
+                    stopped = Stop(Outcome.CONVERGED, k * per_step)
                     break
                 carry, more = going_on
                 iterations = k + more
                 reference, improved = math.inf, k  # the next stage's patience, from here
                 bar.total = iterations
-    return run(stopped or Stop(Outcome.BUDGET, k), k)
+    return run(stopped or Stop(Outcome.BUDGET, k * per_step), k)

@@ -33,8 +33,9 @@ def lsmr(
     current ρ (its ``y0`` option), the residual is recorded, and the run stops when it
     stagnates (``tol``).
 
-    **What an iteration is:** ``check_every`` LSMR steps (each one forward and one adjoint
-    pass over all viewpoints), plus one forward pass for the restart's residual.
+    **What an iteration is:** one LSMR step (one forward and one adjoint pass over all
+    viewpoints); `stopped` counts them. The history has one entry per check, every
+    ``check_every`` steps (each check adds a forward pass for the restart's residual).
     ``check_every=iterations`` runs one uninterrupted LSMR; restarts slow it slightly.
 
     **Arguments:**
@@ -68,6 +69,7 @@ def lsmr(
         desc="lsmr",
         image=lambda x: x,
         start_measure=residual_of(operator.fn, signal, x),
+        per_step=steps,
     )
     return Solution(x, history, stopped, stats | {"check_every": steps})
 
