@@ -32,25 +32,19 @@ import jax
 import numpy as np
 
 import rift_jax as rj
+from rift_jax import _io
 
 # -- writing: an interrupted run never leaves a half-written file ---------------------------
 
 
 def write_atomic(path: str | Path, data: bytes | str) -> Path:
-    """Write ``data`` to a temporary file beside ``path``, then rename it into place."""
+    """Write ``data`` to ``path`` atomically (rift_jax's writer: a temporary file beside
+    it, renamed into place), creating its folder."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if isinstance(data, str):
         data = data.encode("utf-8")  # results carry π, ±, √: not the locale's business
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
-    return path
+    return _io.write_atomic(path, lambda f: f.write(data))
 
 
 def check_writable(directory: str | Path) -> None:

@@ -65,5 +65,4 @@ from ._support import estimate_support as estimate_support  # noqa: E402
 from ._synthesis import PointScatterers as PointScatterers  # noqa: E402
 from ._synthesis import RadarData as RadarData  # noqa: E402
 from ._synthesis import synthesize as synthesize  # noqa: E402
-
-__version__ = "0.1.0"
+from ._version import __version__ as __version__  # noqa: E402

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import stat
 
 import jax
 import numpy as np
@@ -121,11 +123,29 @@ def test_an_interrupted_save_keeps_the_previous_file(measured, tmp_path, monkeyp
     def interrupted(source, target):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(rj._io.os, "replace", interrupted)
+    monkeypatch.setattr(rj._io.atomic.os, "replace", interrupted)
     with pytest.raises(KeyboardInterrupt):
         rj.save(path, rj.Scene.empty(1.0, 0.5))
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.h5"]
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077])
+def test_saved_files_get_the_mode_of_any_new_file(tmp_path, umask):
+    """An atomic write's temporary file is no 0600 `mkstemp` file: the saved file has the
+    mode the process's umask gives every new file, as a plain ``open(path, "w")`` would."""
+    previous = os.umask(umask)
+    try:
+        plain = tmp_path / "plain"
+        plain.write_bytes(b"")
+        saved = rj.save(tmp_path / "scene.npz", rj.Scene.empty(1.0, 0.5))
+        ply = rj.export_ply(tmp_path / "scene.ply", rj.scenes.sphere(0.25, extent=1.0))
+    finally:
+        os.umask(previous)
+    expected = stat.S_IMODE(plain.stat().st_mode)
+    assert expected == 0o666 & ~umask
+    for path in (saved, ply):
+        assert stat.S_IMODE(path.stat().st_mode) == expected, path.name
 
 
 def _rewrite_npz(path, **changes):
@@ -269,7 +289,7 @@ def test_fit_results_round_trip_exactly_with_their_field(reference, tmp_path, su
 
 
 def test_every_field_of_a_fit_result_has_its_place_in_the_file():
-    """A field added to FitResult must be saved too (rift_jax/_io.py, `_encode_result` and
+    """A field added to FitResult must be saved too (rift_jax/_io/codec.py, `_encode_result` and
     `_decode_result`), or a loaded result would silently lose it."""
     saved = {"scene", "history", "seconds", "method", "options", "stopped", "radar"}
     saved |= {"viewpoints", "stats", "field", "support", "trained"}
