@@ -41,7 +41,6 @@ from . import scenes as scenes  # noqa: E402
 from . import solvers as solvers  # noqa: E402
 from ._fit import FitResult as FitResult  # noqa: E402
 from ._fit import FitWarning as FitWarning  # noqa: E402
-from ._fit import GridWarning as GridWarning  # noqa: E402
 from ._fit import fit as fit  # noqa: E402
 from ._geometry import C0 as C0  # noqa: E402
 from ._geometry import Radar as Radar  # noqa: E402
@@ -59,6 +58,7 @@ from ._models import RiftS as RiftS  # noqa: E402
 from ._operator import GRT as GRT  # noqa: E402
 from ._operator import GRTOperator as GRTOperator  # noqa: E402
 from ._operator import grt_operator as grt_operator  # noqa: E402
+from ._scenes import GridWarning as GridWarning  # noqa: E402
 from ._scenes import Scene as Scene  # noqa: E402
 from ._scenes import grid_points as grid_points  # noqa: E402
 from ._support import estimate_support as estimate_support  # noqa: E402

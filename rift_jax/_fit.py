@@ -21,7 +21,7 @@ from . import _metrics
 from ._geometry import Radar, Viewpoints, spread
 from ._models import Field
 from ._operator import grt_operator
-from ._scenes import Scene, grid_size, nesting_granularities, shared_fraction
+from ._scenes import GridWarning, Scene, grid_size, nesting_granularities, shared_fraction
 from ._sharding import gathered
 from ._solvers import Diverged, History, Stop
 from ._solvers.methods import METHODS
@@ -412,7 +412,23 @@ def _check(operator, signal, rho, on: Support | None, points, viewpoints) -> dic
 
 class FitWarning(UserWarning):
     """A fit ran to its end but likely failed: it explains the data no better than the zero
-    image, or its RIFT field is unlike the data's backprojection (`fit`'s checks)."""
+    image, or its RIFT field is unlike the data's backprojection (`fit`'s checks), or it was
+    given a signal without phase."""
+
+
+def _warn_if_phaseless(signal) -> None:
+    """A radar signal is complex: its phase, k·R, is what places a scatterer. A real-valued
+    one (magnitudes, or the real part of I/Q data) reconstructs nothing like the scene,
+    without any error to say so. (An all-zero signal has a path of its own: ρ = 0.)"""
+    signal = np.asarray(signal)
+    if np.any(signal) and (not np.iscomplexobj(signal) or not np.any(signal.imag)):
+        warnings.warn(
+            "fit: the signal (`scene_or_signal`) is real-valued: it carries no phase, which "
+            "is what places each scatterer (exp(j·k·R)). Pass the complex (I/Q) samples; "
+            "magnitudes alone reconstruct nothing like the scene.",
+            FitWarning,
+            stacklevel=4,
+        )
 
 
 def _warn_if_failed(method: str, stats: dict, on_support: bool) -> None:
@@ -450,10 +466,6 @@ def _warn_if_failed(method: str, stats: dict, on_support: bool) -> None:
             FitWarning,
             stacklevel=4,
         )
-
-
-class GridWarning(UserWarning):
-    """The inverse grid shares few points with the grid the data came from."""
 
 
 def _warn_unless_nested(data: Scene, granularity: float) -> None:
@@ -522,6 +534,7 @@ def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):
                 f"fit: the RadarData has {len(data.viewpoints)} viewpoints but `viewpoints` "
                 f"has {len(viewpoints)}."
             )
+        _warn_if_phaseless(data.signal)
         return data.signal, data.scale, data.radar, extent, granularity
     radar = Radar() if radar is None else radar
     signal = np.asarray(data)
@@ -538,5 +551,6 @@ def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):
         )
     check_finite(signal, "fit: the signal (`scene_or_signal`)")
     peak = float(np.max(np.abs(signal)))
+    _warn_if_phaseless(signal)
     scale = peak if peak > 0 else 1.0  # solvers work on O(1) data; ρ is scaled back
     return signal / scale, scale, radar, extent, granularity

@@ -14,6 +14,7 @@ point lies inside the object (boundaries inclusive, to 1e-6 m).
 from __future__ import annotations
 
 import math
+import warnings
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -36,6 +37,28 @@ def grid_size(extent: float, granularity: float, where: str = "grid_size") -> in
             "half-width): the grid would have a single point."
         )
     return int(math.floor(2 * extent / granularity + 1e-6)) + 1
+
+
+class GridWarning(UserWarning):
+    """A grid that does not reach its extent, or an inverse grid that shares few points with
+    the grid the data came from."""
+
+
+def warn_unless_spanned(extent: float, granularity: float) -> int:
+    """`grid_size`, warning (`GridWarning`) when the grid's points stop short of ±``extent``:
+    the scene's `extent` would then promise a region that no point samples."""
+    n = grid_size(extent, granularity)
+    reach = (n - 1) * granularity / 2
+    if reach < extent * (1 - 1e-6):
+        divides = 2 * extent / math.ceil(2 * extent / granularity)
+        warnings.warn(
+            f"A grid of `granularity` {granularity:g} m over `extent` ±{extent:g} m reaches "
+            f"only ±{reach:.6g} m ({n} points per axis): nothing beyond is sampled. Choose a "
+            f"granularity that divides 2·extent, e.g. {divides:.6g} m.",
+            GridWarning,
+            stacklevel=3,
+        )
+    return n
 
 
 def grid_axis(extent: float, granularity: float, where: str = "grid_axis") -> np.ndarray:
@@ -116,7 +139,8 @@ class Scene(eqx.Module):
     @classmethod
     def empty(cls, extent: float, granularity: float) -> Scene:
         """An all-zero scene (e.g. a reconstruction grid)."""
-        n = grid_size(extent, granularity, "Scene.empty")
+        grid_size(extent, granularity, "Scene.empty")  # errors name the function
+        n = warn_unless_spanned(extent, granularity)
         return cls(jnp.zeros((n, n, n), jnp.complex64), float(extent), float(granularity))
 
     @property
@@ -150,7 +174,8 @@ class Scene(eqx.Module):
         from skimage.filters import gaussian
         from skimage.transform import warp
 
-        n_new = grid_size(self.extent, granularity, "Scene.resample")
+        grid_size(self.extent, granularity, "Scene.resample")
+        n_new = warn_unless_spanned(self.extent, granularity)
         factor = granularity / self.granularity
         coords = (grid_axis(self.extent, granularity) / self.granularity) + (self.shape[0] - 1) / 2
         mesh = np.stack(np.meshgrid(coords, coords, coords, indexing="ij"))
@@ -173,6 +198,8 @@ class Scene(eqx.Module):
 
 def _coordinates(extent: float, granularity: float, where: str = "scene") -> tuple[np.ndarray, ...]:
     """(x, y, z) of every grid point, each (n, n, n); errors name the builder ``where``."""
+    grid_size(extent, granularity, where)
+    warn_unless_spanned(extent, granularity)
     return np.meshgrid(*(grid_axis(extent, granularity, where),) * 3, indexing="ij")
 
 

@@ -3,6 +3,7 @@
 import dataclasses
 import functools
 import inspect
+import re
 import warnings
 
 import numpy as np
@@ -67,6 +68,22 @@ def test_signal_paths_agree(small_cube, matched):
     np.testing.assert_allclose(from_array.scene.reflectivity, expected, rtol=0, atol=atol)
 
 
+def test_a_signal_without_phase_warns(small_cube):
+    """Magnitudes (a real dtype) or complex samples with no imaginary part: a FitWarning
+    before anything runs (the empty support then stops the fit, so nothing compiles)."""
+    radar, scene, train, _ = small_cube
+    signal = np.asarray(rj.synthesize(scene, train, radar).signal)
+    stop = dict(support=np.zeros((5,) * 3, bool), extent=2.0, granularity=1.0, radar=radar)
+    for phaseless in (np.abs(signal), np.abs(signal).astype(np.complex64)):
+        with pytest.warns(rj.FitWarning, match="real-valued: it carries no phase"):
+            with pytest.raises(ValueError, match="no points"):
+                rj.fit(phaseless, train, **stop)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rj.FitWarning)
+        with pytest.raises(ValueError, match="no points"):
+            rj.fit(signal, train, **stop)
+
+
 def test_zero_signal_warns(small_cube):
     radar, _, train, _ = small_cube
     zeros = np.zeros((len(train), *radar.signal_shape), np.complex64)
@@ -99,7 +116,7 @@ def test_each_method_declares_the_options_its_solver_takes():
 
 def test_bad_input(small_cube):
     radar, scene, train, _ = small_cube
-    signal = np.ones((len(train), *radar.signal_shape), np.complex64)
+    signal = np.full((len(train), *radar.signal_shape), 1 + 1j, np.complex64)
     grid = dict(extent=2.0, granularity=1.0, radar=radar)
     with pytest.raises(ValueError, match="unknown `method` 'newton'"):
         rj.fit(scene, train, method="newton")
@@ -130,9 +147,13 @@ def test_warns_when_the_inverse_grid_does_not_nest():
     # fit warns while preparing the data, before it solves: an empty support then stops it
     # with a ValueError, so that no solver is compiled for this check (~10 s of the suite)
     common = dict(radar=radar, method="lsmr", progress=False)
-    with pytest.warns(rj.GridWarning, match=r"shares 0% of its points.*20 points per axis"):
+    with pytest.warns(rj.GridWarning) as warned:
         with pytest.raises(ValueError, match="no points"):
             rj.fit(even, views, support=np.zeros((10,) * 3, bool), **common)
+    said = [str(w.message) for w in warned]
+    assert any(re.search(r"shares 0% of its points.*20 points per axis", m) for m in said)
+    # 2·4/19 m does not divide ±2 m either: its 10 points reach ±1.89 m
+    assert any("reaches only ±1.89474 m (10 points per axis)" in m for m in said)
     odd = rj.Scene.from_array(np.ones((21, 21, 21), np.complex64), 2.0)
     with warnings.catch_warnings():
         warnings.simplefilter("error", rj.GridWarning)

@@ -1,3 +1,5 @@
+import warnings
+
 import numpy as np
 import pytest
 
@@ -133,3 +135,20 @@ def test_random_primitives_are_seeded_varied_and_checked():
         rj.scenes.random_primitives(-1)
     with pytest.raises(ValueError, match="count"):
         rj.scenes.random_primitives(0, count=(3, 2))
+
+
+def test_a_grid_that_stops_short_of_its_extent_warns():
+    """``Scene.empty(1.2, 0.35)``: 7 points per axis reach ±1.05 m while `extent` says 1.2;
+    each way to make such a grid says so. Grids whose granularity divides 2·extent are quiet."""
+    short = r"0.35 m over `extent` ±1.2 m reaches only ±1.05 m \(7 points per axis\)"
+    with pytest.warns(rj.GridWarning, match=short + ".*e.g. 0.342857 m"):
+        assert rj.Scene.empty(1.2, 0.35).shape == (7,) * 3
+    with pytest.warns(rj.GridWarning, match=short):
+        scenes.cube(0.35, extent=1.2, edge=1.0)
+    with pytest.warns(rj.GridWarning, match=short):
+        rj.Scene.empty(1.2, 0.2).resample(0.35)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rj.GridWarning)
+        rj.Scene.empty(1.2, 0.3).resample(0.4)
+        rj.Scene.empty(3.0, 0.12)
+        scenes.cube(0.2, extent=1.0)

@@ -99,7 +99,8 @@ def test_support_leak_reads_a_bounded_sample_of_views(small_cube, monkeypatch):
 
 def test_mask_at_picks_the_nearest_voxel_on_a_grid_that_does_not_nest():
     """±2 m at 0.6 m: 7 points per axis, the first at -1.8 m, not at -extent."""
-    grid = rj.Scene.empty(2.0, 0.6)
+    with pytest.warns(rj.GridWarning, match="reaches only ±1.8 m"):
+        grid = rj.Scene.empty(2.0, 0.6)
     mask = np.random.default_rng(0).random(grid.shape) < 0.5
     points = np.random.default_rng(1).uniform(-2.2, 2.2, (2000, 3))
     centres = grid.points()
