@@ -68,6 +68,38 @@ def test_signal_paths_agree(small_cube, matched):
     np.testing.assert_allclose(from_array.scene.reflectivity, expected, rtol=0, atol=atol)
 
 
+def test_the_command_line_fits_a_saved_file_as_fit_does(small_cube, matched, tmp_path, capsys):
+    """``rift-jax fit DATA ...`` (`rift_jax._cli`): the result it saves is `matched`'s, made
+    by `fit` in Python with the same options; ``info`` describes both files; bad input
+    names what is wrong."""
+    from rift_jax._cli import main
+
+    radar, scene, train, _ = small_cube
+    data = rj.save(tmp_path / "data.npz", rj.synthesize(scene, train, radar))
+    grid = ["--extent", "2", "--granularity", "0.5", "--method", "lsmr", "--no-progress"]
+    options = ["--option", "iterations=300", "--option", "check_every=100", "--option", "tol=0"]
+    assert main(["fit", str(data), *grid, *options]) == 0
+    said = capsys.readouterr().out
+    assert "lsmr: budget at iteration 300" in said and "data_fit.h5" in said
+    result = rj.load(tmp_path / "data_fit.h5")
+    assert result.method == "lsmr" and result.options["check_every"] == 100
+    np.testing.assert_allclose(result.scene.reflectivity, matched.scene.reflectivity)
+    assert main(["info", str(data)]) == 0 and main(["info", str(tmp_path / "data_fit.h5")]) == 0
+    said = capsys.readouterr().out
+    assert "RadarData" in said and "signal (30, 8, 4, 4)" in said
+    assert "FitResult" in said and "9³ points at 0.5 m over ±2.0 m, 30 views" in said
+    with pytest.raises(SystemExit, match="`--option` must be NAME=VALUE"):
+        main(["fit", str(data), *grid, "--option", "300"])
+    with pytest.raises(SystemExit, match=r"takes no option\(s\) \[.epochs.\]"):
+        main(["fit", str(data), *grid, "--option", "epochs=3"])
+    with pytest.raises(SystemExit, match="holds a Scene, not measured signals"):
+        main(["fit", str(rj.save(tmp_path / "scene.npz", scene)), *grid])
+    # `experiment` hands what follows the study's name to the study's own command line
+    with pytest.raises(SystemExit) as ended:
+        main(["experiment", "weak_target", "--help"])
+    assert ended.value.code == 0 and "Weak-target detection" in capsys.readouterr().out
+
+
 def test_a_signal_without_phase_warns(small_cube):
     """Magnitudes (a real dtype) or complex samples with no imaginary part: a FitWarning
     before anything runs (the empty support then stops the fit, so nothing compiles)."""

@@ -1,0 +1,7 @@
+"""``python -m rift_jax``: the command line (`rift_jax._cli`), as the ``rift-jax`` script."""
+
+import sys
+
+from ._cli import main
+
+sys.exit(main())
