@@ -50,6 +50,7 @@ from experiments.runner import (
     command,
     environment_line,
     execute,
+    figure_lines,
     rift_options,
     save_figure,
     table,
@@ -150,7 +151,7 @@ def main(cfg: Config, *, out: Path, scale: str, seed: int, resume: bool, progres
     scenes = {name: getattr(rj.scenes, name)(cfg.forward, extent=cfg.extent) for name in cfg.scenes}
 
     def report(results, volumes, figures):
-        write_atomic(out / "results.md", markdown(results, cfg, scale))
+        write_atomic(out / "results.md", markdown(results, cfg, scale, figures))
         if figures:
             plot(results, cfg, out / "time_to_quality.png")
 
@@ -199,7 +200,7 @@ def _number(value: float | None) -> str:
     return "–" if value is None else f"{value:.3f}"
 
 
-def markdown(results: dict, cfg: Config, scale: str) -> str:
+def markdown(results: dict, cfg: Config, scale: str, figures: bool) -> str:
     rows = results["rows"]
     rate = results.get("notes", {}).get("matmul_rate_gmacs")
     lines = [
@@ -251,7 +252,8 @@ def markdown(results: dict, cfg: Config, scale: str) -> str:
                     "",
                 ]
             lines += [table(chosen, columns)]
-    return "\n".join(lines) + "\n"
+    lines += ["", *figure_lines(("time_to_quality.png",), figures)]
+    return "\n".join(lines).rstrip("\n") + "\n"
 
 
 def plot(results: dict, cfg: Config, path: Path) -> None:

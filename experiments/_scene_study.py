@@ -20,10 +20,14 @@ from .runner import (
     Run,
     environment_line,
     execute,
+    figure_lines,
     run_cell,
     table,
     write_atomic,
 )
+
+# the figures, in the order results.md shows them: x-y and x-z projections, training
+FIGURES = ("reconstructions_xy.png", "reconstructions_xz.png", "training.png")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,6 +148,7 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path, 
             "",
             *_verdicts(rows, cfg.scenes, cfg),
             "",
+            *figure_lines(FIGURES, figures),
             environment_line(results),
             "",
         ]
@@ -163,10 +168,10 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path, 
             extent=cfg.extent,
             plane=plane,
             title=f"{title}: maximum-intensity projections ({plane})",
-            path=out / f"reconstructions_{plane.replace('-', '')}.png",
+            path=out / FIGURES[0 if plane == "x-y" else 1],
             row_labels=list(cfg.scenes),
         )
-    training_curves(results["histories"], title=title, path=out / "training.png")
+    training_curves(results["histories"], title=title, path=out / FIGURES[2])
 
 
 def main(

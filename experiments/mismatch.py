@@ -59,6 +59,7 @@ from .runner import (
     command,
     environment_line,
     execute,
+    figure_lines,
     noise_name,
     rift_options,
     save_figure,
@@ -236,7 +237,8 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path) 
                 lines.append(f"| {method} | " + " | ".join(values) + " |")
             lines.append("")
     every = [("scene", lambda r: r["scene"]), ("run", lambda r: r["run"]), *METRIC_COLUMNS]
-    lines += ["## Every run", "", table(rows, every), "", environment_line(results), ""]
+    lines += ["## Every run", "", table(rows, every), ""]
+    lines += [*figure_lines(("mismatch.png",), figures), environment_line(results), ""]
     write_atomic(out / "results.md", "\n".join(lines))
     if figures:
         _figure(cells, cfg, out / "mismatch.png")

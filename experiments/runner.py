@@ -828,6 +828,18 @@ METRIC_COLUMNS = [
 ]
 
 
+def figure_lines(names: tuple[str, ...], drawn: bool) -> list[str]:
+    """The report's figures, embedded in its results.md (so that the page shows them, on
+    GitHub and on the docs site), when the run draws them; lines to put before the
+    environment line."""
+    if not drawn:
+        return []
+    lines = ["## Figures", ""]
+    for name in names:
+        lines += [f"![{Path(name).stem.replace('_', ' ')}]({name})", ""]
+    return lines
+
+
 def environment_line(results: dict) -> str:
     v = results["versions"]
     line = (

@@ -51,6 +51,7 @@ from .runner import (
     command,
     environment_line,
     execute,
+    figure_lines,
     noise_name,
     save_figure,
     table,
@@ -340,7 +341,8 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path) 
         lines += ["", "## Failures", ""]
         lines += [f"- {r['scene']}, {r['run']}: {r['failed']}." for r in failures]
     columns = [("scene", lambda r: r["scene"]), ("run", lambda r: r["run"]), *METRIC_COLUMNS]
-    lines += ["", "## Every run", "", table(rows, columns), "", environment_line(results), ""]
+    lines += ["", "## Every run", "", table(rows, columns), ""]
+    lines += [*figure_lines(("stability.png",), figures), environment_line(results), ""]
     write_atomic(out / "results.md", "\n".join(lines))
     if figures:
         _figure(rows, cfg, out / "stability.png")

@@ -60,11 +60,15 @@ from .runner import (
     command,
     environment_line,
     execute,
+    figure_lines,
     run_cell,
     save_figure,
     table,
     write_atomic,
 )
+
+# the figures, in the order results.md shows them: top view, profiles, training
+FIGURES = ("weak_target.png", "profiles.png", "training.png")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -265,6 +269,7 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path, 
             "Paper (Section 4.3, no numbers): least squares cannot separate the bars at any "
             "ratio; RIFT separates them down to 4:1.",
             "",
+            *figure_lines(FIGURES, figures),
             environment_line(results),
             "",
         ]
@@ -281,11 +286,11 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path, 
         extent=cfg.extent,
         plane="x-y",
         title="Weak target, top view (strong bar at x < 0)",
-        path=out / "weak_target.png",
+        path=out / FIGURES[0],
         row_labels=[*labels, "truth"],
     )
-    _plot_profiles(rows, truths, cfg, out / "profiles.png")
-    training_curves(results["histories"], title="Weak target", path=out / "training.png")
+    _plot_profiles(rows, truths, cfg, out / FIGURES[1])
+    training_curves(results["histories"], title="Weak target", path=out / FIGURES[2])
 
 
 def _plot_profiles(rows, truths: dict, cfg: Config, path: Path) -> None:

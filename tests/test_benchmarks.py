@@ -42,6 +42,7 @@ def test_every_method_is_traced_against_its_own_clock(quick):
     assert "## cube, 10 training views" in text and "to m-SSIM 0.9" in text
     assert "rift-n auto fine" in text and "G multiply-adds/s" in text
     assert (out / "time_to_quality.png").stat().st_size > 10_000
+    assert text.endswith("## Figures\n\n![time to quality](time_to_quality.png)\n")  # shown
 
 
 def test_a_finished_benchmark_resumes_without_repeating_a_run(quick, monkeypatch):

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 
 import jax
 import jax.numpy as jnp
@@ -50,6 +51,8 @@ def test_quick_scale_writes_every_file(quick_run):
     name, module, out, results, figures = quick_run
     for file in FILES + figures:
         assert (out / file).stat().st_size > 0, file
+    shown = re.findall(r"^!\[[^\]]*\]\(([^)]+)\)$", (out / "results.md").read_text(), re.M)
+    assert tuple(shown) == figures  # results.md shows its figures, each once, in order
     assert not list(out.glob(".*.tmp")), "a temporary file was left behind"
     saved = json.loads((out / "results.json").read_text())
     assert saved["experiment"] == name and saved["scale"] == "quick"
