@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import gc
+import inspect
 import io
 import json
 import math
@@ -377,12 +378,15 @@ class Trace:
         }
 
     def finish(self, result) -> list[dict]:
-        """The records, closed by ``result`` itself, each with its iteration's residual."""
-        final = self._score(len(result.history), result.seconds, result.scene)
-        self.records.append(final)
+        """The records, closed by ``result`` itself, each with its iteration's residual.
+        Iterations are the solver's own (LSMR's steps), as the monitor counts them; the
+        history has one entry per ``check_every`` of them (1 for the other solvers)."""
+        per_entry = int(result.stats.get("check_every", 1))
         residual = result.history.residual
+        final = self._score(len(residual) * per_entry, result.seconds, result.scene)
+        self.records.append(final)
         for record in self.records:
-            k = min(record["iteration"], len(residual)) - 1
+            k = min(record["iteration"] // per_entry, len(residual)) - 1
             record["residual"] = float(residual[k]) if k >= 0 else 1.0
         return self.records
 
@@ -710,7 +714,7 @@ def _upgrade(row: dict, seed: int) -> dict:
         row["options"] = options
     legacy = row["stopped"]
     if not isinstance(legacy, str):
-        return row
+        return _lsmr_in_steps(row)
     outcome, at = None, row["iterations"]
     if legacy in ("iterations", "epochs"):  # least squares' budget, RIFT's
         outcome = rj.solvers.Outcome.BUDGET
@@ -726,7 +730,28 @@ def _upgrade(row: dict, seed: int) -> dict:
             "version cannot read; choose another --out or drop --resume."
         )
     row = {key: value for key, value in row.items() if key != "diverged"}
-    return row | {"stopped": rj.solvers.Stop(outcome, at).to_json()}
+    return _lsmr_in_steps(row | {"stopped": rj.solvers.Stop(outcome, at).to_json()})
+
+
+def _lsmr_in_steps(row: dict) -> dict:
+    """An LSMR row's `stopped` in LSMR steps. Rows from before 2d75a99 counted checks: their
+    ``at`` is the history's length (``iterations``; one more after a divergence), where
+    this version's is that times ``check_every``."""
+    if row.get("method") != "lsmr" or not isinstance(row.get("options"), dict):
+        return row
+    options = _LSMR_DEFAULTS | row["options"]
+    every = min(options["check_every"], options["iterations"])  # as lsmr checks
+    at, checks = row["stopped"]["at"], row["iterations"]
+    old, new = (checks, checks + 1), (checks * every, (checks + 1) * every)
+    if every > 1 and at in old and at not in new:
+        return row | {"stopped": row["stopped"] | {"at": at * every}}
+    return row
+
+
+_LSMR_DEFAULTS = {
+    name: inspect.signature(rj.solvers.lsmr).parameters[name].default
+    for name in ("check_every", "iterations")
+}
 
 
 def _check_kept(rows: list[dict], runs: list[Run], seed: int, path: Path) -> None:

@@ -83,12 +83,21 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+# fit's arguments that the command sets itself: not method options
+_RESERVED = ("extent", "granularity", "support", "seed", "progress", "radar", "monitor", "method")
+
+
 def _options(pairs: list[str]) -> dict:
     options = {}
     for pair in pairs:
         name, sep, text = pair.partition("=")
         if not sep or not name.isidentifier():
             raise SystemExit(f"rift-jax fit: `--option` must be NAME=VALUE, got {pair!r}.")
+        if name in _RESERVED:
+            raise SystemExit(
+                f"rift-jax fit: `{name}` is not a method option: the command sets it (from its "
+                "own options, such as --extent, or from the file)."
+            )
         try:
             options[name] = json.loads(text)
         except json.JSONDecodeError:
@@ -102,13 +111,21 @@ def _fit(args) -> int:
     options = _options(args.option)
     if args.method is not None:
         options["method"] = args.method
-    data = rj.load_rift_public(args.data) if args.public else rj.load(args.data)
+    out = args.out or args.data.with_name(f"{args.data.stem}_fit.h5")
+    if out.suffix.lower() not in (".npz", ".h5", ".hdf5") or not out.parent.is_dir():
+        raise SystemExit(  # now, not after the fit
+            f"rift-jax fit: `--out` must be a .npz, .h5 or .hdf5 file in an existing folder, "
+            f"got {str(out)!r}."
+        )
+    try:
+        data = rj.load_rift_public(args.data) if args.public else rj.load(args.data)
+    except (ValueError, OSError) as error:
+        raise SystemExit(f"rift-jax fit: {error}") from error
     if not isinstance(data, rj.RadarData):
         raise SystemExit(
             f"rift-jax fit: {str(args.data)!r} holds a {type(data).__name__}, not measured "
             "signals (a RadarData): reconstruct a Scene with rift_jax.fit in Python."
         )
-    out = args.out or args.data.with_name(f"{args.data.stem}_fit.h5")
     try:
         result = rj.fit(
             data,
@@ -120,6 +137,9 @@ def _fit(args) -> int:
             progress=not args.no_progress,
             **options,
         )
+    except rj.solvers.Diverged as error:  # the run so far is kept: save it, and say so
+        rj.save(out, error.result)
+        raise SystemExit(f"rift-jax fit: {error} Saved the best before it to {out}.") from error
     except ValueError as error:  # bad input: the message names the argument
         raise SystemExit(f"rift-jax fit: {error}") from error
     rj.save(out, result)
@@ -138,7 +158,7 @@ def _info(args) -> int:
 
     try:
         obj = rj.load(args.path)
-    except ValueError as error:
+    except (ValueError, OSError) as error:
         raise SystemExit(f"rift-jax info: {error}") from error
     print(f"{args.path}: {type(obj).__name__}")
     if isinstance(obj, rj.RadarData):
@@ -157,7 +177,8 @@ def _info(args) -> int:
 
 
 def _experiment(args) -> int:
-    if os.getcwd() not in sys.path:  # a console script's path starts at its own folder
+    added = os.getcwd() not in sys.path  # a console script's path starts at its own folder
+    if added:
         sys.path.insert(0, os.getcwd())
     try:
         module = importlib.import_module(f"experiments.{args.name}")
@@ -168,5 +189,8 @@ def _experiment(args) -> int:
             "rift-jax experiment: the studies live in the repository's experiments/ folder, "
             "not in the installed package; run this from the root of a clone."
         ) from error
+    finally:
+        if added:
+            sys.path.remove(os.getcwd())
     module.cli(args.args)
     return 0

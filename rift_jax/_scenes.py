@@ -14,9 +14,12 @@ point lies inside the object (boundaries inclusive, to 1e-6 m).
 from __future__ import annotations
 
 import math
+import os
+import sys
 import warnings
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
@@ -45,20 +48,35 @@ class GridWarning(UserWarning):
 
 
 def warn_unless_spanned(extent: float, granularity: float) -> int:
-    """`grid_size`, warning (`GridWarning`) when the grid's points stop short of ±``extent``:
-    the scene's `extent` would then promise a region that no point samples."""
+    """`grid_size`, warning (`GridWarning`) when the grid's points stop short of ±``extent``
+    by more than a thousandth of a voxel: the scene's `extent` would then promise a region
+    that no point samples."""
     n = grid_size(extent, granularity)
     reach = (n - 1) * granularity / 2
-    if reach < extent * (1 - 1e-6):
+    if reach < extent - granularity / 1000:
         divides = 2 * extent / math.ceil(2 * extent / granularity)
+        digits = 10 ** (8 - math.floor(math.log10(divides)))  # 9 significant, rounded down:
+        divides = math.floor(divides * digits) / digits  # rounded up, it would lose a point
         warnings.warn(
             f"A grid of `granularity` {granularity:g} m over `extent` ±{extent:g} m reaches "
             f"only ±{reach:.6g} m ({n} points per axis): nothing beyond is sampled. Choose a "
-            f"granularity that divides 2·extent, e.g. {divides:.6g} m.",
+            f"granularity that divides 2·extent, e.g. {divides:.9g} m.",
             GridWarning,
-            stacklevel=3,
+            stacklevel=_caller_outside_rift_jax(),
         )
     return n
+
+
+def _caller_outside_rift_jax() -> int:
+    """The `warnings.warn` stacklevel of the first caller outside rift_jax (and the equinox
+    and JAX wrappers between), so that a warning names the user's line, whichever public
+    function (`Scene.empty`, a builder, `fit`, ...) made the grid."""
+    package = os.path.dirname(os.path.abspath(__file__))
+    wrappers = (package, os.path.dirname(eqx.__file__), os.path.dirname(jax.__file__))
+    frame, level = sys._getframe(2), 2  # warn_unless_spanned's caller: stacklevel 2
+    while frame is not None and frame.f_code.co_filename.startswith(wrappers):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 def grid_axis(extent: float, granularity: float, where: str = "grid_axis") -> np.ndarray:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import types
 
 import numpy as np
 import pytest
@@ -88,6 +89,16 @@ def test_a_trace_samples_on_its_time_ladder():
         trace(iteration, seconds, current)
     assert [r["iteration"] for r in trace.records] == [2, 4, 5] and len(rendered) == 3
     assert all(r["m_ssim"] == pytest.approx(1.0) and r["p_rmse"] < 1e-3 for r in trace.records)
+    # LSMR's monitor counts its steps, its history one entry per check (every 10 steps):
+    # each sample reads the residual of the check it was taken at, the last closes at step 40
+    trace.records = [{"iteration": k} for k in (10, 20, 30)]
+    history = rj.solvers.History(np.array([0.8, 0.6, 0.5, 0.4]), np.arange(1.0, 5.0))
+    lsmr = types.SimpleNamespace(
+        history=history, stats={"check_every": 10}, seconds=4.0, scene=truth
+    )
+    records = trace.finish(lsmr)
+    assert [r["iteration"] for r in records] == [10, 20, 30, 40]
+    assert [r["residual"] for r in records] == pytest.approx([0.8, 0.6, 0.5, 0.4])
 
 
 def test_the_compile_profile_attributes_compilation_to_the_running_test(

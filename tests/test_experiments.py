@@ -157,7 +157,11 @@ def _legacy(row: dict) -> dict:
 
 def _had_old_form(row: dict, seed: int) -> bool:
     stop = rj.solvers.Stop.from_json(row["stopped"])
-    ended = stop.at == row["iterations"] or stop.outcome.value in ("diverged", "zero signal")
+    steps = 1  # per history entry; LSMR's stopped counts its steps, one entry per check
+    if row["method"] == "lsmr":
+        steps = min(row["options"].get("check_every", 10), row["options"]["iterations"])
+    ended = stop.outcome.value in ("diverged", "zero signal")
+    ended = ended or stop.at == steps * row["iterations"]
     return row["seed"] == seed and ended
 
 
@@ -236,10 +240,15 @@ def test_the_experiments_name_rifts_patience():
     older = row | {"options": {"epochs": 3}}
     expected = {"epochs": 3, "patience": None, "prune": None, "support": None}
     assert runner._upgrade(older, seed=0)["options"] == expected
-    lsmr = row | {"method": "lsmr", "options": {"iterations": 3, "support": "auto"}}
-    assert runner._upgrade(lsmr, seed=0) == lsmr
-    older_lsmr = lsmr | {"options": {"iterations": 3}}
-    assert runner._upgrade(older_lsmr, seed=0)["options"] == {"iterations": 3, "support": None}
+    lsmr = row | {"method": "lsmr", "options": {"iterations": 30, "support": "auto"}}
+    lsmr |= {"stopped": rj.solvers.Stop(rj.solvers.Outcome.BUDGET, 30).to_json()}
+    assert runner._upgrade(lsmr, seed=0) == lsmr  # 3 checks of 10 steps
+    older_lsmr = lsmr | {"options": {"iterations": 30}}
+    assert runner._upgrade(older_lsmr, seed=0)["options"] == {"iterations": 30, "support": None}
+    # before 2d75a99 LSMR's `stopped` counted checks: 3 then, 30 steps now (4 after a divergence)
+    for outcome, then, now in (("budget", 3, 30), ("diverged", 4, 40), ("zero signal", 0, 0)):
+        counted = lsmr | {"stopped": {"outcome": outcome, "at": then}}
+        assert runner._upgrade(counted, seed=0)["stopped"] == {"outcome": outcome, "at": now}
 
 
 def test_resume_refuses_a_changed_setting_unless_it_only_shapes_the_runs():

@@ -94,6 +94,12 @@ def test_the_command_line_fits_a_saved_file_as_fit_does(small_cube, matched, tmp
         main(["fit", str(data), *grid, "--option", "epochs=3"])
     with pytest.raises(SystemExit, match="holds a Scene, not measured signals"):
         main(["fit", str(rj.save(tmp_path / "scene.npz", scene)), *grid])
+    with pytest.raises(SystemExit, match="`extent` is not a method option"):
+        main(["fit", str(data), *grid, "--option", "extent=3"])
+    with pytest.raises(SystemExit, match="`--out` must be a .npz, .h5 or .hdf5 file"):
+        main(["fit", str(data), *grid, "--out", str(tmp_path / "result.npy")])  # before fitting
+    with pytest.raises(SystemExit, match="no file at `path`"):
+        main(["fit", str(tmp_path / "missing.npz"), *grid])
     # `experiment` hands what follows the study's name to the study's own command line
     with pytest.raises(SystemExit) as ended:
         main(["experiment", "weak_target", "--help"])

@@ -288,6 +288,15 @@ def test_fit_results_round_trip_exactly_with_their_field(reference, tmp_path, su
     np.testing.assert_array_equal(loaded.render(0.25).reflectivity, full.render(0.25).reflectivity)
 
 
+def test_every_model_has_its_place_in_the_file():
+    """A model added to `rift_jax._models.MODELS` (what `fit`'s ``model=`` names) needs the
+    settings that rebuild it in the file's codec too, or saving its results would fail."""
+    from rift_jax._io import codec
+    from rift_jax._models import MODELS
+
+    assert set(codec._SETTINGS) == set(MODELS.values())
+
+
 def test_every_field_of_a_fit_result_has_its_place_in_the_file():
     """A field added to FitResult must be saved too (rift_jax/_io/codec.py, `_encode_result` and
     `_decode_result`), or a loaded result would silently lose it."""

@@ -1,3 +1,4 @@
+import re
 import warnings
 
 import numpy as np
@@ -141,14 +142,21 @@ def test_a_grid_that_stops_short_of_its_extent_warns():
     """``Scene.empty(1.2, 0.35)``: 7 points per axis reach ±1.05 m while `extent` says 1.2;
     each way to make such a grid says so. Grids whose granularity divides 2·extent are quiet."""
     short = r"0.35 m over `extent` ±1.2 m reaches only ±1.05 m \(7 points per axis\)"
-    with pytest.warns(rj.GridWarning, match=short + ".*e.g. 0.342857 m"):
+    with pytest.warns(rj.GridWarning, match=short + ".*e.g. 0.342857142 m") as empty:
         assert rj.Scene.empty(1.2, 0.35).shape == (7,) * 3
-    with pytest.warns(rj.GridWarning, match=short):
+    with pytest.warns(rj.GridWarning, match=short) as built:
         scenes.cube(0.35, extent=1.2, edge=1.0)
-    with pytest.warns(rj.GridWarning, match=short):
+    with pytest.warns(rj.GridWarning, match=short) as resampled:
         rj.Scene.empty(1.2, 0.2).resample(0.35)
+    for warned in (empty, built, resampled):  # each names this line, not rift_jax's
+        assert [w.filename for w in warned] == [__file__]
+    # the granularity it suggests is rounded down, so that it spans the extent itself
+    with pytest.warns(rj.GridWarning, match=r"e.g. 0.166666666 m") as warned:
+        rj.Scene.empty(0.5, 0.17)
+    suggested = float(re.search(r"e.g. ([0-9.]+) m", str(warned[0].message)).group(1))
     with warnings.catch_warnings():
         warnings.simplefilter("error", rj.GridWarning)
         rj.Scene.empty(1.2, 0.3).resample(0.4)
         rj.Scene.empty(3.0, 0.12)
         scenes.cube(0.2, extent=1.0)
+        rj.Scene.empty(0.5, suggested)

@@ -114,6 +114,16 @@ def test_tolerance_stops_early(problem):
     assert solution.stopped.outcome is rj.solvers.Outcome.CONVERGED
     assert len(solution.history) < 200 // 10  # one entry per check: stopped before the budget
     assert solution.stopped.at == 10 * len(solution.history)  # in LSMR steps
+    seen = []  # the monitor counts LSMR steps too, as `stopped` does
+    solvers.lsmr(
+        operator,
+        signal,
+        iterations=30,
+        tol=0.0,
+        progress=False,
+        monitor=lambda k, *_: seen.append(k),
+    )
+    assert seen == [10, 20, 30]
 
 
 def test_kaczmarz_seeded(problem):

@@ -13,12 +13,14 @@ from typing import BinaryIO
 def write_atomic(path: str | os.PathLike, write: Callable[[BinaryIO], object]) -> Path:
     """``write(file)`` into a temporary file beside ``path``, then rename it into place.
 
-    The temporary file is created with ``os.open``'s mode 0o666, so the file gets the
-    process's umask as any other new file does (``tempfile.mkstemp`` would make it 0600,
-    unreadable to the user's group and to web servers)."""
+    The temporary file is created with ``os.open``'s mode 0o666, so the file gets the mode
+    the process's umask gives every new file (``tempfile.mkstemp`` would make it 0600,
+    unreadable to the user's group and to web servers); a file written again gets it
+    anew."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)  # Windows: bytes
+    fd = os.open(tmp, flags, 0o666)
     try:
         with os.fdopen(fd, "wb") as f:
             write(f)

@@ -16,7 +16,7 @@ import numpy as np
 
 from .._fit import FitResult
 from .._geometry import Radar, Viewpoints, antenna_positions
-from .._models import MODELS, Field, RiftN, RiftS
+from .._models import MODELS, Field, HashGrid, RiftN, RiftS
 from .._scenes import Scene
 from .._solvers import History, Outcome, Recipe, Stop
 from .._synthesis import PointScatterers, RadarData
@@ -223,7 +223,7 @@ _MODELS = {cls.__name__: cls for cls in MODELS.values()}  # by class name, as fi
 
 
 def _model_record(model) -> dict:
-    if type(model) not in _MODELS.values():
+    if type(model) not in _MODELS.values() or type(model) not in _SETTINGS:
         raise ValueError(
             f"save: a FitResult's field or options hold a {type(model).__name__} model; only "
             f"{', '.join(_MODELS)} are saved (their sizes rebuild the model to load the "
@@ -239,10 +239,10 @@ def _model_record(model) -> dict:
 
 def _settings(model) -> dict:
     """What, beside width and depth, rebuilds ``model``'s skeleton."""
-    if isinstance(model, RiftN):
-        return {"negative_slope": model.negative_slope}
-    if isinstance(model, RiftS):
-        return {"omega_0": model.omega_0}
+    return _SETTINGS[type(model)](model)
+
+
+def _hash_grid_settings(model: HashGrid) -> dict:
     levels, table_size, features = model.tables.shape
     return {
         "levels": levels,
@@ -251,6 +251,14 @@ def _settings(model) -> dict:
         "coarsest": model.resolutions[0],
         "finest": model.resolutions[-1],
     }
+
+
+# each of _models.MODELS, by class (a test holds the two to the same models)
+_SETTINGS = {
+    RiftN: lambda model: {"negative_slope": model.negative_slope},
+    RiftS: lambda model: {"omega_0": model.omega_0},
+    HashGrid: _hash_grid_settings,
+}
 
 
 def _weights(module) -> list[tuple[str, Any]]:

@@ -52,7 +52,8 @@ class Outcome(enum.Enum):
 @dataclasses.dataclass(frozen=True)
 class Stop:
     """How a run ended: its `Outcome`, and ``at``, the iteration (sweep or epoch, from 1)
-    it ended in: the last one run, or the one that diverged (0 for a zero signal)."""
+    it ended in: the last one run, or the one that diverged (0 for a zero signal). LSMR,
+    checked every ``check_every`` steps, ends at a check: ``at`` is that check's step."""
 
     outcome: Outcome
     at: int
