@@ -292,6 +292,7 @@ def report(results: dict, volumes: dict, figures: bool, cfg: Config, out: Path) 
             for (noise, n), scenes in missing.items()
         ]
         lines.append("")
+    lines += ["By method, against the targets:", ""]  # a list of its own, not the one above
     for method, counts in _failures_by_method(rows, counted).items():
         lines.append(f"- {LABELS[method]}: {counts[0]} of {counts[1]} runs failed.")
     if "rift-n" in cfg.methods and "fista" in cfg.methods:
