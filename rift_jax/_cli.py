@@ -20,6 +20,8 @@ import os
 import sys
 from pathlib import Path
 
+from ._io.native import _SUFFIXES
+
 _EXPERIMENTS = ("weak_target", "simple_scenes", "complex_scenes", "stability", "mismatch")
 _EXPERIMENTS += ("rift_ideas",)
 
@@ -112,7 +114,7 @@ def _fit(args) -> int:
     if args.method is not None:
         options["method"] = args.method
     out = args.out or args.data.with_name(f"{args.data.stem}_fit.h5")
-    if out.suffix.lower() not in (".npz", ".h5", ".hdf5") or not out.parent.is_dir():
+    if out.suffix.lower() not in _SUFFIXES or not out.parent.is_dir():
         raise SystemExit(  # now, not after the fit
             f"rift-jax fit: `--out` must be a .npz, .h5 or .hdf5 file in an existing folder, "
             f"got {str(out)!r}."

@@ -419,9 +419,10 @@ class FitWarning(UserWarning):
 def _warn_if_phaseless(signal) -> None:
     """A radar signal is complex: its phase, k·R, is what places a scatterer. A real-valued
     one (magnitudes, or the real part of I/Q data) reconstructs nothing like the scene,
-    without any error to say so. (An all-zero signal has a path of its own: ρ = 0.)"""
-    signal = np.asarray(signal)
-    if np.any(signal) and (not np.iscomplexobj(signal) or not np.any(signal.imag)):
+    without any error to say so. (An all-zero signal has a path of its own: ρ = 0.) A
+    RadarData's JAX array is checked where it lives, not copied to the host."""
+    xp = np if isinstance(signal, np.ndarray) else jnp
+    if xp.any(signal) and (not xp.iscomplexobj(signal) or not xp.any(xp.imag(signal))):
         warnings.warn(
             "fit: the signal (`scene_or_signal`) is real-valued: it carries no phase, which "
             "is what places each scatterer (exp(j·k·R)). Pass the complex (I/Q) samples; "

@@ -47,11 +47,11 @@ class GridWarning(UserWarning):
     the grid the data came from."""
 
 
-def warn_unless_spanned(extent: float, granularity: float) -> int:
-    """`grid_size`, warning (`GridWarning`) when the grid's points stop short of ±``extent``
-    by more than a thousandth of a voxel: the scene's `extent` would then promise a region
-    that no point samples."""
-    n = grid_size(extent, granularity)
+def warn_unless_spanned(extent: float, granularity: float, where: str) -> int:
+    """`grid_size` (its errors naming ``where``), warning (`GridWarning`) when the grid's
+    points stop short of ±``extent`` by more than a thousandth of a voxel: the scene's
+    `extent` would then promise a region that no point samples."""
+    n = grid_size(extent, granularity, where)
     reach = (n - 1) * granularity / 2
     if reach < extent - granularity / 1000:
         divides = 2 * extent / math.ceil(2 * extent / granularity)
@@ -157,8 +157,7 @@ class Scene(eqx.Module):
     @classmethod
     def empty(cls, extent: float, granularity: float) -> Scene:
         """An all-zero scene (e.g. a reconstruction grid)."""
-        grid_size(extent, granularity, "Scene.empty")  # errors name the function
-        n = warn_unless_spanned(extent, granularity)
+        n = warn_unless_spanned(extent, granularity, "Scene.empty")
         return cls(jnp.zeros((n, n, n), jnp.complex64), float(extent), float(granularity))
 
     @property
@@ -192,8 +191,7 @@ class Scene(eqx.Module):
         from skimage.filters import gaussian
         from skimage.transform import warp
 
-        grid_size(self.extent, granularity, "Scene.resample")
-        n_new = warn_unless_spanned(self.extent, granularity)
+        n_new = warn_unless_spanned(self.extent, granularity, "Scene.resample")
         factor = granularity / self.granularity
         coords = (grid_axis(self.extent, granularity) / self.granularity) + (self.shape[0] - 1) / 2
         mesh = np.stack(np.meshgrid(coords, coords, coords, indexing="ij"))
@@ -216,8 +214,7 @@ class Scene(eqx.Module):
 
 def _coordinates(extent: float, granularity: float, where: str = "scene") -> tuple[np.ndarray, ...]:
     """(x, y, z) of every grid point, each (n, n, n); errors name the builder ``where``."""
-    grid_size(extent, granularity, where)
-    warn_unless_spanned(extent, granularity)
+    warn_unless_spanned(extent, granularity, where)
     return np.meshgrid(*(grid_axis(extent, granularity, where),) * 3, indexing="ij")
 
 
