@@ -22,8 +22,9 @@ from ._geometry import Radar, Viewpoints, spread
 from ._models import Field
 from ._operator import grt_operator
 from ._scenes import GridWarning, Scene, grid_size, nesting_granularities, shared_fraction
-from ._sharding import gathered
+from ._sharding import gathered, replicated
 from ._solvers import Diverged, History, Stop
+from ._solvers._common import DIAGNOSTIC_VIEWS
 from ._solvers.methods import METHODS
 from ._support import Support, as_mask, estimate_support, mask_at, voxels_holding
 from ._synthesis import PointScatterers, RadarData, synthesize
@@ -370,7 +371,7 @@ def fit(
         raise
 
 
-_LEAK_VIEWS = 100  # as many as `estimate_support` backprojects by default
+_LEAK_VIEWS = DIAGNOSTIC_VIEWS  # as many as `estimate_support` backprojects by default
 _COHERENCE = 0.8  # cos(|ρ|, |Aᴴy|) below this: a RIFT field unlike the data (a smooth blob)
 
 
@@ -389,11 +390,12 @@ def _check(operator, signal, rho, on: Support | None, points, viewpoints) -> dic
       a scatterer the support left out, low when the fit explains what the data backproject
       outside (`Support.leak`: screened, exact at its maximum).
     """
-    rows = jnp.asarray(spread(operator.fn.n_views, _LEAK_VIEWS))
-    signal = jnp.asarray(signal)[rows]
-    on_support = operator.fn.subset(rows)
+    rows = spread(operator.fn.n_views, _LEAK_VIEWS)
+    # placed as the solvers' own diagnostics place them: the same compiled products
+    fn, signal, placed = replicated((operator.fn, jnp.asarray(signal)[rows], jnp.asarray(rho)))
+    on_support = fn.subset(replicated(jnp.asarray(rows)))
     back = np.abs(np.asarray(gathered(on_support.adjoint(signal))))
-    residual = signal - gathered(on_support(jnp.asarray(rho)))
+    residual = signal - gathered(on_support(placed))
     norm = float(jnp.linalg.norm(signal))
     magnitude = np.abs(np.asarray(rho))
     scale = float(np.linalg.norm(magnitude) * np.linalg.norm(back))
@@ -405,7 +407,7 @@ def _check(operator, signal, rho, on: Support | None, points, viewpoints) -> dic
         return out
     leak = 0.0
     if (peak := back.max()) > 0:
-        views = viewpoints[np.asarray(rows)]
+        views = viewpoints[rows]
         leak = on.leak(residual, views, points, operator.fn.radar) / float(peak)
     return out | {"support_leak": leak}
 

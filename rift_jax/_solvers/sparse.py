@@ -175,9 +175,15 @@ def _update(solver, pair, state, misfit, t, lam, fn, signal, step_size):
     return _settled((step.params, step.state, misfit, state.t, pair))
 
 
-@exact_jit
 def _max_backprojection(fn, signal):
-    return jnp.max(jnp.abs(fn.adjoint(signal)))
+    """max |Aᴴy|, on the operator's own compiled adjoint (see `_common.misfit`)."""
+    fn, signal = replicated((fn, signal))
+    return _largest_magnitude(fn.adjoint(signal))
+
+
+@exact_jit
+def _largest_magnitude(x):
+    return jnp.max(jnp.abs(x))
 
 
 def _prox_l1(pair, lam, scaling=1.0):
@@ -202,14 +208,23 @@ def _power_norm(fn, iterations: int, seed: int) -> float:
     re, im = jax.random.normal(jax.random.key(seed), (2, int(live.sum())))
     start = np.zeros(fn.n_points, np.complex64)
     start[live] = np.asarray(jax.lax.complex(re, im))
-    return float(_power(fn, jnp.asarray(start), iterations))
+    return float(_power(*replicated((fn, jnp.asarray(start))), iterations))
+
+
+def _power(fn, v, iterations: int):
+    """‖Av‖² after ``iterations`` power steps v ← AᴴAv/‖AᴴAv‖ from v/‖v‖, each on the
+    operator's own compiled products (see `_common.misfit`), dispatched from here."""
+    v = _unit(v)
+    for _ in range(iterations):  # Av comes back split over the devices: replicated, as
+        v = _unit(fn.adjoint(replicated(fn(v))))  # every other Aᴴ input (one compilation)
+    return _energy(fn(v))
 
 
 @exact_jit
-def _power(fn, v, iterations: int):
-    def body(_, v):
-        w = fn.adjoint(fn(v))
-        return w / jnp.linalg.norm(w)
+def _unit(v):
+    return v / jnp.linalg.norm(v)
 
-    v = jax.lax.fori_loop(0, iterations, body, v / jnp.linalg.norm(v))
-    return jnp.sum(jnp.abs(fn(v)) ** 2)
+
+@exact_jit
+def _energy(x):
+    return jnp.sum(jnp.abs(x) ** 2)

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
 
 from ..._geometry import spread
 from ..._operator import GRT
-from ..._precision import exact_jit
 from ..._sharding import replicated
+from .._common import DIAGNOSTIC_VIEWS, norm_ratio
 from .._solution import Solution
 
 
@@ -63,14 +62,11 @@ def diagnose(
 
 
 def check_collapse(solution: Solution, fn: GRT, signal, *, warm: bool) -> str | None:
-    """`diagnose` for a trained run; ‖Aρ‖/‖y‖ from up to 10 evenly spread viewpoints."""
-    index = spread(fn.n_views, 10)
-    energy = float(_energy_ratio(*replicated((fn, solution.rho, signal, jnp.asarray(index)))))
+    """`diagnose` for a trained run; ‖Aρ‖/‖y‖ from up to `DIAGNOSTIC_VIEWS` evenly spread
+    viewpoints: `fit`'s own checks read the same ones, so the forward is compiled once."""
+    index = spread(fn.n_views, DIAGNOSTIC_VIEWS)
+    fn, rho, signal, index = replicated((fn, solution.rho, signal, jnp.asarray(index)))
+    energy = float(norm_ratio(fn.subset(index)(rho), signal[index]))
     gain_ratio = float(abs(solution.field.gain)) / solution.stats["initial_gain"]
     rho = np.asarray(solution.rho)[fn.live_points()]  # padding must not move mean or spread
     return diagnose(solution.history.loss, rho, energy, gain_ratio, warm=warm)
-
-
-@exact_jit
-def _energy_ratio(fn: GRT, rho, signal, index) -> Float[Array, ""]:
-    return jnp.linalg.norm(fn.subset(index)(rho)) / jnp.linalg.norm(signal[index])
