@@ -12,6 +12,7 @@ from jaxtyping import Array, Complex, Float
 
 from ._geometry import Radar, Viewpoints
 from ._operator import grt_operator
+from ._padding import ladder_size
 from ._scenes import Scene, grid_axis
 from ._sharding import gathered
 from ._validation import as_finite_array, check_instance, check_positive
@@ -111,6 +112,9 @@ class PointScatterers(eqx.Module):
         return Scene(jnp.asarray(rho, jnp.complex64), self.extent, float(granularity))
 
 
+SYNTHESIS_SIZES_PER_OCTAVE = 8  # at most 1/8 more points than the scene occupies
+
+
 def synthesize(
     scene: Scene | PointScatterers,
     viewpoints: Viewpoints,
@@ -155,9 +159,14 @@ def synthesize(
         raise ValueError(
             "synthesize: `scene` has no non-zero voxels or scatterers, so its signal is zero."
         )
-    operator = grt_operator(radar, viewpoints, points)
+    # every scene (and every reconstruction `FitResult.predict` renders) occupies its own
+    # number of points: padded with ρ = 0 to a shared size, scenes of about the same size
+    # share one compiled forward (the sum is the same, up to float32 rounding)
+    size = ladder_size(len(rho), SYNTHESIS_SIZES_PER_OCTAVE)
+    operator = grt_operator(radar, viewpoints, points, pad_to=size)
+    rho = np.pad(np.asarray(rho, np.complex64), (0, size - len(rho)))
     # jitted (compiles once per shape); gathered here when the views span several processes
-    raw = gathered(operator.mv(jnp.asarray(rho, jnp.complex64)))
+    raw = gathered(operator.mv(jnp.asarray(rho)))
     scale = float(jnp.max(jnp.abs(raw)))
     signal = raw / scale
     if snr_db is not None:

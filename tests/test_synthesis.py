@@ -1,9 +1,11 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import relative_error
+from conftest import compilations, relative_error
 
 import rift_jax as rj
+from rift_jax._padding import ladder_size
+from rift_jax._synthesis import SYNTHESIS_SIZES_PER_OCTAVE
 
 
 @pytest.fixture(scope="module")
@@ -19,6 +21,24 @@ def test_synthesize_normalises_and_keeps_the_scale(scene, small_radar):
     assert float(jnp.max(jnp.abs(data.signal))) == pytest.approx(1.0, rel=1e-6)
     # Skipping empty space changes nothing: the full grid gives the same raw signal.
     full = rj.grt_operator(small_radar, vps, scene.points()).mv(scene.reflectivity.ravel())
+    assert relative_error(data.signal * data.scale, full) < 1e-5
+
+
+def test_scenes_of_about_the_same_size_share_one_compiled_forward(scene, small_radar, caplog):
+    """Occupied points are padded (ρ = 0) to a ladder of sizes: 73 and 76 points are both
+    summed on 80, the second with no compilation, and each sum is its own to float32
+    rounding (against the grid-wide sum above, whose padding is the grid's empty voxels)."""
+    vps = rj.Viewpoints.grid(3, 2)
+    values = np.asarray(scene.reflectivity).copy()
+    occupied = np.flatnonzero(values)
+    assert len(occupied) == 76 and ladder_size(73, SYNTHESIS_SIZES_PER_OCTAVE) == 80
+    fewer = values.copy()
+    fewer.ravel()[occupied[:3]] = 0
+    smaller = rj.Scene(fewer, scene.extent, scene.granularity)
+    assert rj.synthesize(smaller, vps, small_radar).signal.shape == (6, 12, 4, 5)
+    assert compilations(caplog, lambda: rj.synthesize(scene, vps, small_radar).signal) == []
+    data = rj.synthesize(smaller, vps, small_radar)
+    full = rj.grt_operator(small_radar, vps, smaller.points()).mv(fewer.ravel())
     assert relative_error(data.signal * data.scale, full) < 1e-5
 
 
