@@ -371,7 +371,9 @@ def fit(
         raise
 
 
-_LEAK_VIEWS = DIAGNOSTIC_VIEWS  # as many as `estimate_support` backprojects by default
+# as many as `estimate_support` backprojects by default, and as RIFT's collapse check reads
+# (all of them, up to this many): their products then share compiled programs
+_LEAK_VIEWS = DIAGNOSTIC_VIEWS
 _COHERENCE = 0.8  # cos(|ρ|, |Aᴴy|) below this: a RIFT field unlike the data (a smooth blob)
 
 

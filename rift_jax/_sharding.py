@@ -55,7 +55,9 @@ def replicated(tree):
     `fori_loop`) through this: XLA does not partition a jit whose inputs all sit on one
     device, and a `shard_map` nested in its loop then fails to compile on CPU ("No
     registered implementation for ... GlobalToLocalShape"). A loop step that returns its
-    carry through it, and starts from a carry placed by it, compiles once.
+    carry through it, and starts from a carry placed by it, compiles once. A jit compiles
+    again for inputs placed otherwise, so calls that should share a compiled program (the
+    operator's products in the solvers' and `fit`'s diagnostics) pass theirs through it.
     """
     if jax.device_count() == 1 or jax.sharding.get_abstract_mesh().manual_axes:
         return tree  # inside a `shard_map`, each device's values are its own

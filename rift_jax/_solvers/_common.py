@@ -121,6 +121,6 @@ def misfit(prediction: Array, signal: Array) -> Array:
 
 
 @exact_jit
-def norm_ratio(a: Array, b: Array) -> Array:
-    """‖a‖/‖b‖ (0 for a zero ``b``)."""
-    return relative(jnp.linalg.norm(a), jnp.linalg.norm(b))
+def norms(*arrays: Array) -> tuple[Array, ...]:
+    """‖x‖ of each of ``arrays``."""
+    return tuple(jnp.linalg.norm(x) for x in arrays)

@@ -25,7 +25,7 @@ from ..._operator import GRT, GRTOperator
 from ..._precision import exact_jit, split, to_float64
 from ..._sharding import replicated
 from ..._validation import as_finite_array, check_positive
-from .._common import as_complex, as_pair, check_problem, norm_ratio, realified, zero_signal
+from .._common import as_complex, as_pair, check_problem, norms, realified, zero_signal
 from .._solution import Monitor, Patience, Record, Run, Solution, iterate
 from .active_set import Candidates, StepPoints
 from .optimizer import optimizer_for
@@ -312,11 +312,12 @@ def batch_order(rng: np.random.Generator, n: int, size: int) -> np.ndarray:
 
 
 def _energy_gain(field: Field, fn: GRT, coords, signal) -> Float[Array, ""]:
-    """The g > 0 with ‖g·Aρ‖ = ‖y‖ for the field's ρ (0 if Aρ = 0). (Not the least-squares
+    """The g > 0 with ‖g·Aρ‖ = ‖y‖ for the field's ρ. (Not the least-squares
     gain: data that no ρ on this grid explains, such as the paper's two-grid protocol, make
     that gain ~0, and a zero prediction is where magnitude losses are flat.) On the
     operator's own compiled forward (see `rift_jax._solvers._common.misfit`)."""
-    return norm_ratio(signal, fn(field.render(coords)))
+    measured, predicted = norms(signal, fn(field.render(coords)))
+    return measured / predicted
 
 
 @exact_jit
