@@ -101,9 +101,9 @@ def residual_of(fn: GRT, signal: Array, rho: Array) -> float:
     return float(misfit(fn(rho), signal))
 
 
-# The viewpoints a diagnostic reads at most (evenly spread): `fit`'s checks (residual,
-# coherence, support leak) and RIFT's collapse check read the same ones, so that their
-# products share one compiled program, and a 1000-view fit does not pay minutes for them.
+# The viewpoints `fit`'s checks (residual, coherence, support leak) read at most, evenly
+# spread, so that a 1000-view fit does not pay minutes for them. Up to this many they read
+# every view, as RIFT's collapse check then does: their products share compiled programs.
 DIAGNOSTIC_VIEWS = 100
 
 # Diagnostics and set-up passes (a residual, a starting gain, a power iteration) call the
