@@ -46,6 +46,7 @@ from ._geometry import C0 as C0  # noqa: E402
 from ._geometry import Radar as Radar  # noqa: E402
 from ._geometry import Viewpoints as Viewpoints  # noqa: E402
 from ._geometry import antenna_positions as antenna_positions  # noqa: E402
+from ._geometry import antennas_at as antennas_at  # noqa: E402
 from ._io import export_ply as export_ply  # noqa: E402
 from ._io import load as load  # noqa: E402
 from ._io import load_rift_public as load_rift_public  # noqa: E402

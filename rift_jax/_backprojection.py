@@ -36,7 +36,8 @@ corner nearest an antenna.) That is too coarse to reconstruct with, and ample to
 `estimate_support` evaluates the exact adjoint only where this one comes within a margin of
 the threshold.
 
-Applies to radars with uniform frequencies and linear arms (every `Radar`).
+Applies to the paper's L with uniform frequencies (`Radar.is_paper_array`), at any poses;
+other radars are screened by the exact adjoint (`rift_jax._support`).
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
-from ._geometry import C0, Radar, Viewpoints, antenna_positions
+from ._geometry import C0, Radar, Viewpoints, antennas_at
 from ._grt import EXACT, _cis, _distances, _zeros
 from ._precision import split, to_float64
 from ._sharding import gathered, over_views
@@ -82,6 +83,11 @@ def fast_backprojection(
 
     **Returns:** complex64 (n,), in the exact adjoint's units.
     """
+    if not radar.is_paper_array:
+        raise ValueError(
+            "fast_backprojection: `radar` must be the paper's L with uniform frequencies "
+            "(Radar.is_paper_array); screen other radars with the exact adjoint."
+        )
     n_range, n_angles = _tables(radar)
     f = radar.frequencies
     k = 2 * math.pi * f / C0
@@ -100,8 +106,7 @@ def fast_backprojection(
     n = len(points)
     padded = -(-n // _CHUNK) * _CHUNK
     out = _backproject(
-        split(viewpoints.azimuth),
-        split(viewpoints.polar),
+        *(split(x) for x in viewpoints.poses(radar)),
         jnp.asarray(signal, jnp.complex64),
         split(np.pad(np.asarray(points, np.float64), ((0, padded - n), (0, 0)))),
         constants,
@@ -115,7 +120,7 @@ def fast_backprojection(
 
 @functools.partial(jax.jit, static_argnames=("radar", "n_range", "n_angles", "wavenumbers"))
 def _backproject(
-    azimuth, polar, signal, points, constants, *, radar, n_range, n_angles, wavenumbers
+    positions, orientations, signal, points, constants, *, radar, n_range, n_angles, wavenumbers
 ):
     steer_t, steer_r, recentre = constants
     k_c, dk = wavenumbers
@@ -147,7 +152,10 @@ def _backproject(
             beta = jnp.sum((x - c_r) * u_r, axis=1) / r_r
             along = jnp.mod((r_t + r_r) * per_metre, n_range).astype(jnp.float32)
             carrier = _cis(k_c, r_t + r_r, jnp.float32)
-            amplitude = (0.25 / (r_t * r_r)).astype(jnp.float32) if radar.near_field else 1.0
+            amplitude = 1.0
+            if radar.near_field:  # the kernels' one-term amplitude (`rift_jax.grt`)
+                scale = 0.25 if radar.spreading == "paper" else 1.0
+                amplitude = (scale / (r_t * r_r)).astype(jnp.float32)
             scale = 0.5 * (n_angles - 1)
             a, b = (((c + 1) * scale).astype(jnp.float32) for c in (alpha, beta))
         corners = []
@@ -163,16 +171,17 @@ def _backproject(
                     total += values[((i + di) * n_angles + ia + da) * n_angles + ib + db] * w
         return total * jax.lax.complex(carrier[0], -carrier[1]) * amplitude
 
-    def local(azimuth, polar, signal):
+    def local(positions, orientations, signal):
         def one_view(total, view):
-            a, p, s = view
+            position, orientation, s = view
             with jax.enable_x64(True):
-                arms = tuple(map(arm, antenna_positions(radar, to_float64(a), to_float64(p))))
+                antennas = antennas_at(radar, to_float64(position), to_float64(orientation))
+                arms = tuple(map(arm, antennas))
             values = table(s)
             image = jax.lax.map(lambda chunk: lookup(values, chunk, arms), chunks)
             return total + image.reshape(-1), None
 
-        zero = _zeros((chunks.hi.shape[0] * _CHUNK,), jnp.complex64, azimuth.hi, signal)
-        return jax.lax.scan(one_view, zero, (azimuth, polar, signal))[0]
+        zero = _zeros((chunks.hi.shape[0] * _CHUNK,), jnp.complex64, positions.hi, signal)
+        return jax.lax.scan(one_view, zero, (positions, orientations, signal))[0]
 
-    return over_views(local, azimuth, polar, signal, reduce=True)
+    return over_views(local, positions, orientations, signal, reduce=True)

@@ -21,12 +21,31 @@ from ._validation import as_finite_array, check_positive, check_positive_int, is
 C0 = 299_792_458.0
 """Speed of light in vacuum (m/s)."""
 
+SPREADING_LAWS = ("paper", "radar-equation")
+
+
+def _antenna_layout(positions, where: str) -> tuple[tuple[float, float, float], ...]:
+    """(n, 3) antenna positions (metres, finite, n ≥ 1) as a tuple of triples: a `Radar` is
+    static in compiled programs, so what it holds must be hashable."""
+    array = as_finite_array(positions, where, np.float64)
+    if array.ndim != 2 or array.shape[1] != 3 or array.shape[0] == 0:
+        raise ValueError(f"{where} must have shape (n, 3) with n ≥ 1 (metres), got {array.shape}.")
+    return tuple(tuple(float(v) for v in row) for row in array)
+
 
 @dataclasses.dataclass(frozen=True)
 class Radar:
-    """A bistatic MIMO radar: an L-shaped array of ``n_tx`` transmitters and ``n_rx``
+    """A MIMO radar: its antennas in the radar's own frame and its frequencies.
+
+    By default the paper's: an L-shaped array of ``n_tx`` transmitters and ``n_rx``
     receivers, ``n_frequencies`` uniform frequencies on ``[f_min, f_max]`` (endpoints
-    included), the array centre at ``distance`` metres from the scene centre.
+    included). Any other radar (an irregular MIMO layout, one antenna for a monostatic SAR,
+    non-uniform frequencies) comes from `Radar.from_antennas`.
+
+    **The radar's frame.** Its origin is the viewpoint (the array's reference point), its z
+    axis looks at the scene, its x axis is the paper's TX arm (the world's +z, projected
+    across the line of sight) and y = z × x its RX arm. The paper's TX element m sits at
+    ``s (m + 1/2)`` on x, RX element n at ``s (n + 1/2)`` on y (paper Eqs. 9-11).
 
     **Arguments:**
 
@@ -35,9 +54,14 @@ class Radar:
     - `spacing`: element spacing (m); `None` gives c0 / (2 f_max) = 1.4276 mm, the paper's
       value and the authors' code's (the paper's formula, from f_min, would give 1.578 mm;
       docs/conventions.md, 'Geometry').
-    - `distance`: radius of the sphere of viewpoints (m); 10 m in the paper, 50 m in the
-      weak-target study.
-    - `near_field`: keep the 1/R_b² spreading factor (paper F_NF) or drop it (F_FF).
+    - `distance`: radius of the sphere of viewpoints given by angles (m); 10 m in the paper,
+      50 m in the weak-target study. Viewpoints given as poses (`Viewpoints.from_poses`)
+      carry their own positions.
+    - `near_field`: keep the spreading factor (paper F_NF) or drop it (F_FF).
+    - `spreading`: the near field's spreading factor: "paper", 1/(r_t + r_r)², or
+      "radar-equation", the bistatic radar equation's 1/(r_t r_r).
+    - `tx_offsets`, `rx_offsets`, `frequency_list`: set by `Radar.from_antennas` (None:
+      the paper's L and uniform grid).
     """
 
     n_frequencies: int = 100
@@ -48,6 +72,10 @@ class Radar:
     spacing: float | None = None
     distance: float = 10.0
     near_field: bool = True
+    spreading: str = "paper"
+    tx_offsets: tuple[tuple[float, float, float], ...] | None = None
+    rx_offsets: tuple[tuple[float, float, float], ...] | None = None
+    frequency_list: tuple[float, ...] | None = None
 
     def __post_init__(self):
         for name in ("n_frequencies", "n_tx", "n_rx"):
@@ -62,13 +90,117 @@ class Radar:
         check_positive("Radar: `distance`", self.distance)
         if not isinstance(self.near_field, bool | np.bool_):  # a string would read as True
             raise ValueError(f"Radar: `near_field` must be True or False, got {self.near_field!r}.")
+        if self.spreading not in SPREADING_LAWS:
+            raise ValueError(
+                f"Radar: `spreading` must be one of {SPREADING_LAWS}, got {self.spreading!r}."
+            )
         spacing = C0 / (2.0 * self.f_max) if self.spacing is None else self.spacing
         check_positive("Radar: `spacing`", spacing)
         object.__setattr__(self, "spacing", float(spacing))
+        for name, count in (("tx_offsets", self.n_tx), ("rx_offsets", self.n_rx)):
+            offsets = getattr(self, name)
+            if offsets is not None:
+                offsets = _antenna_layout(offsets, f"Radar: `{name}`")
+                if len(offsets) != count:
+                    raise ValueError(
+                        f"Radar: `{name}` holds {len(offsets)} antennas, but "
+                        f"`{name[:2]}` count is {count}."
+                    )
+                object.__setattr__(self, name, offsets)
+        if self.frequency_list is not None:
+            f = as_finite_array(self.frequency_list, "Radar: `frequency_list`", np.float64)
+            if f.shape != (self.n_frequencies,) or np.any(f <= 0):
+                raise ValueError(
+                    f"Radar: `frequency_list` must hold {self.n_frequencies} positive "
+                    f"frequencies (Hz), got shape {f.shape}."
+                )
+            if not np.isclose(f.min(), self.f_min) or not np.isclose(f.max(), self.f_max):
+                raise ValueError("Radar: `f_min` and `f_max` must be `frequency_list`'s range.")
+            object.__setattr__(self, "frequency_list", tuple(float(x) for x in f))
+
+    @classmethod
+    def from_antennas(
+        cls,
+        tx,
+        rx,
+        frequencies,
+        *,
+        distance: float = 10.0,
+        near_field: bool = True,
+        spreading: str = "paper",
+    ) -> Radar:
+        """Any radar: antenna positions in the radar's frame (see `Radar`) and frequencies.
+
+        **Arguments:**
+
+        - `tx`, `rx`: (n_tx, 3) and (n_rx, 3) positions (metres) in the radar's frame, any
+          layout: TX and RX may coincide (monostatic) or stand apart (bistatic).
+        - `frequencies`: Hz, 1-D, any order and spacing (a uniform grid takes the GRT's
+          fast frequency ladder, others one phasor per frequency).
+        - `distance`, `near_field`, `spreading`: as for `Radar`.
+
+        **Returns:** a `Radar` whose `tx_offsets`, `rx_offsets` and `frequencies` are these.
+        """
+        tx = _antenna_layout(tx, "Radar.from_antennas: `tx`")
+        rx = _antenna_layout(rx, "Radar.from_antennas: `rx`")
+        f = as_finite_array(frequencies, "Radar.from_antennas: `frequencies`", np.float64)
+        if f.ndim != 1 or f.size == 0 or np.any(f <= 0):
+            raise ValueError(
+                "Radar.from_antennas: `frequencies` must be a non-empty 1-D array of positive "
+                f"frequencies (Hz), got shape {f.shape}."
+            )
+        f_min, f_max = float(f.min()), float(f.max())
+        if f.size > 1 and f_max == f_min:
+            raise ValueError("Radar.from_antennas: `frequencies` must not all be equal.")
+        return cls(
+            n_frequencies=f.size,
+            f_min=f_min,
+            f_max=f_max,
+            n_tx=len(tx),
+            n_rx=len(rx),
+            distance=distance,
+            near_field=near_field,
+            spreading=spreading,
+            tx_offsets=tx,
+            rx_offsets=rx,
+            frequency_list=tuple(float(x) for x in f),
+        )
+
+    @property
+    def is_paper_array(self) -> bool:
+        """Whether this is the paper's L with uniform frequencies (the layout that the fast
+        support screen, `rift_jax._backprojection`, is written for)."""
+        return self.tx_offsets is None and self.rx_offsets is None and self.frequency_list is None
+
+    @property
+    def offsets(self) -> tuple[np.ndarray, np.ndarray]:
+        """TX and RX positions in the radar's frame, (n_tx, 3) and (n_rx, 3) metres."""
+        out = []
+        for given, count, axis in (
+            (self.tx_offsets, self.n_tx, 0),
+            (self.rx_offsets, self.n_rx, 1),
+        ):
+            if given is not None:
+                out.append(np.asarray(given, np.float64))
+                continue
+            arm = np.zeros((count, 3))
+            arm[:, axis] = self.spacing * (np.arange(count, dtype=np.float64) + 0.5)
+            out.append(arm)
+        return out[0], out[1]
+
+    @property
+    def separation(self) -> float:
+        """The largest distance between a TX and an RX antenna (m): with the nearest
+        point's distance, it bounds how far the GRT's amplitude is from separable."""
+        tx, rx = self.offsets
+        return float(np.max(np.linalg.norm(tx[:, None] - rx[None], axis=-1)))
 
     @property
     def frequencies(self) -> np.ndarray:
-        """The frequencies (Hz), float64, uniform with endpoints included."""
+        """The frequencies (Hz), float64: `frequency_list`, or uniform with endpoints
+        included."""
+        if self.frequency_list is not None:
+            return np.asarray(self.frequency_list, np.float64)
         return np.linspace(self.f_min, self.f_max, self.n_frequencies)
 
     @property
@@ -93,14 +225,22 @@ def _check_angles(azimuth: np.ndarray, polar: np.ndarray, where: str) -> None:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Viewpoints:
-    """Where the radar looks from: array centres at ``Radar.distance`` from the origin, in
-    the directions ``(azimuth, polar)`` (radians, float64, host arrays).
+    """Where the radar looks from, one pose (a position and an orientation) per viewpoint.
+
+    The paper's: array centres at ``Radar.distance`` from the origin in the directions
+    ``(azimuth, polar)`` (radians, float64, host arrays), looking at the origin
+    (`Viewpoints.grid`, or the angles themselves). Any other poses (a SAR track, a radar on
+    a moving platform, a radar looking elsewhere than the origin) come from
+    `Viewpoints.from_poses`; their ``azimuth`` and ``polar`` are then the positions'
+    directions from the origin.
 
     Index or slice like a sequence (``vps[3]``, ``vps[:10]``, ``vps.subset(idx)``).
     """
 
     azimuth: np.ndarray
     polar: np.ndarray
+    positions: np.ndarray | None = None
+    orientations: np.ndarray | None = None
 
     def __post_init__(self):
         azimuth = as_finite_array(self.azimuth, "Viewpoints: `azimuth`", np.float64)
@@ -116,10 +256,68 @@ class Viewpoints:
                 "Viewpoints: `azimuth` and `polar` must hold at least one viewpoint, got none."
             )
         _check_angles(azimuth, polar, "Viewpoints")
+        if (self.positions is None) != (self.orientations is None):
+            raise ValueError("Viewpoints: give both `positions` and `orientations`, or neither.")
+        if self.positions is not None:
+            n = azimuth.size
+            positions = as_finite_array(self.positions, "Viewpoints: `positions`", np.float64)
+            frames = as_finite_array(self.orientations, "Viewpoints: `orientations`", np.float64)
+            if positions.shape != (n, 3) or frames.shape != (n, 3, 3):
+                raise ValueError(
+                    f"Viewpoints: `positions` and `orientations` must have shapes ({n}, 3) and "
+                    f"({n}, 3, 3), got {positions.shape} and {frames.shape}."
+                )
+            _check_rotations(frames, "Viewpoints: `orientations`")
+            for name, array in (("positions", positions), ("orientations", frames)):
+                array.setflags(write=False)
+                object.__setattr__(self, name, array)
         azimuth.setflags(write=False)
         polar.setflags(write=False)
         object.__setattr__(self, "azimuth", azimuth)
         object.__setattr__(self, "polar", polar)
+
+    @classmethod
+    def from_poses(
+        cls, positions, *, look_at=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0), orientations=None
+    ):
+        """Viewpoints at any ``positions`` (n, 3) metres: a SAR track, a platform's path.
+
+        **Arguments:**
+
+        - `positions`: (n, 3) where the radar's frame has its origin (see `Radar`), metres.
+        - `look_at`: the point (3,) or points (n, 3) each viewpoint looks at (its z axis);
+          the scene's centre, the origin, by default.
+        - `up`: the world direction (3,) that the radar's x axis leans to (its projection
+          across the line of sight). The paper's sphere of viewpoints is the default's.
+        - `orientations`: (n, 3, 3) rotations whose columns are the radar's x, y and z axes
+          in the world; given, `look_at` and `up` are not used.
+
+        **Returns:** `Viewpoints` with these poses.
+        """
+        where = "Viewpoints.from_poses"
+        positions = np.atleast_2d(as_finite_array(positions, f"{where}: `positions`", np.float64))
+        if positions.ndim != 2 or positions.shape[1] != 3 or positions.shape[0] == 0:
+            raise ValueError(
+                f"{where}: `positions` must have shape (n, 3) with n ≥ 1, got {positions.shape}."
+            )
+        radius = np.linalg.norm(positions, axis=1)
+        if np.any(radius == 0):
+            raise ValueError(
+                f"{where}: `positions` must not sit at the scene's centre, the origin."
+            )
+        if orientations is None:
+            orientations = _look_at(positions, look_at, up, where)
+        polar = np.arccos(np.clip(positions[:, 2] / radius, -1.0, 1.0))
+        azimuth = np.arctan2(positions[:, 1], positions[:, 0])
+        return cls(azimuth, polar, positions, orientations)
+
+    def poses(self, radar: Radar) -> tuple[np.ndarray, np.ndarray]:
+        """Each viewpoint's position (n, 3) and orientation (n, 3, 3; columns: the radar's
+        x, y and z axes in the world), float64: as given, or on the sphere of radius
+        ``radar.distance``, looking at the origin."""
+        if self.positions is not None:
+            return np.asarray(self.positions), np.asarray(self.orientations)
+        return _sphere_poses(radar.distance, self.azimuth, self.polar, np)
 
     @classmethod
     def grid(
@@ -145,7 +343,14 @@ class Viewpoints:
         return self.azimuth.shape[0]
 
     def __getitem__(self, index) -> Viewpoints:
-        return Viewpoints(np.atleast_1d(self.azimuth[index]), np.atleast_1d(self.polar[index]))
+        if self.positions is None:
+            return Viewpoints(np.atleast_1d(self.azimuth[index]), np.atleast_1d(self.polar[index]))
+        return Viewpoints(
+            np.atleast_1d(self.azimuth[index]),
+            np.atleast_1d(self.polar[index]),
+            self.positions[index].reshape(-1, 3),
+            self.orientations[index].reshape(-1, 3, 3),
+        )
 
     def subset(self, index: Sequence[int] | np.ndarray) -> Viewpoints:
         """The viewpoints at integer positions (or a boolean mask) ``index``."""
@@ -180,7 +385,8 @@ class Viewpoints:
         )
 
     def __repr__(self) -> str:
-        return f"Viewpoints(n={len(self)})"
+        kind = "" if self.positions is None else ", poses"
+        return f"Viewpoints(n={len(self)}{kind})"
 
 
 def spread(n: int, k: int) -> np.ndarray:
@@ -192,30 +398,88 @@ def spread(n: int, k: int) -> np.ndarray:
 def antenna_positions(
     radar: Radar, azimuth: float | Float[Array, ""], polar: float | Float[Array, ""]
 ) -> tuple[Float[Array, "n_tx 3"], Float[Array, "n_rx 3"]]:
-    """Positions (metres, float64) of the TX and RX elements for one viewpoint.
+    """Positions (metres, float64) of the TX and RX elements for one viewpoint on the
+    sphere of radius ``radar.distance``.
 
     The array centre is ``c = r [sin p cos a, sin p sin a, cos p]`` (p polar, a azimuth);
-    TX element m sits at ``c + s (m + 1/2) u_t`` with ``u_t = [-cos p cos a, -cos p sin a,
-    sin p]``, RX element n at ``c + s (n + 1/2) u_r`` with ``u_r = [-sin a, cos a, 0]``:
-    a one-sided L starting at c, both arms perpendicular to c (paper Eqs. 9-11).
+    the radar's x axis is ``u_t = [-cos p cos a, -cos p sin a, sin p]``, its y axis
+    ``u_r = [-sin a, cos a, 0]``, its z axis u_t × u_r = -c/r: with the paper's L, TX element
+    m sits at ``c + s (m + 1/2) u_t`` and RX element n at ``c + s (n + 1/2) u_r``, a one-sided
+    L starting at c, both arms perpendicular to c (paper Eqs. 9-11).
 
     Computed in float64 (phases k·R reach 10⁴-10⁵ rad, so positions must be exact to well
     below a micrometre). Concrete angles give NumPy float64 arrays (usable whether or not
     x64 is on); traced angles (jit, vmap) give float64 JAX values inside the trace.
     """
     if is_concrete((azimuth, polar)):
-        return _antenna_positions(radar, np.float64(azimuth), np.float64(polar), np)
+        position, frame = _sphere_poses(radar.distance, np.float64(azimuth), np.float64(polar), np)
+        return antennas_at(radar, position, frame)
     with jax.enable_x64(True):
         azimuth, polar = jnp.asarray(azimuth, jnp.float64), jnp.asarray(polar, jnp.float64)
-        return _antenna_positions(radar, azimuth, polar, jnp)
+        position, frame = _sphere_poses(radar.distance, azimuth, polar, jnp)
+        return antennas_at(radar, position, frame)
 
 
-def _antenna_positions(radar: Radar, a, p, xp):
-    """The geometry once, for NumPy (host) or jax.numpy (traced, inside x64) as ``xp``."""
+def antennas_at(radar: Radar, position, orientation):
+    """TX and RX positions (metres, float64) for one pose: ``position + R · offset`` for
+    each of the radar's antennas (`Radar.offsets`), R = ``orientation`` (columns: the
+    radar's axes). NumPy arrays give NumPy; JAX arrays (float64, inside
+    ``jax.enable_x64``) give JAX.
+
+    Written elementwise over the three axes, skipping those on which no antenna sits: the
+    paper's arms lie on one axis each, so its positions are c + s (m + 1/2) u exactly, and
+    XLA gets no size-3 contraction (see `rift_jax.grt`)."""
+    xp = np if isinstance(orientation, np.ndarray) else jnp
+    out = []
+    for offsets in radar.offsets:
+        total = position
+        for k in range(3):
+            if np.any(offsets[:, k]):
+                total = total + offsets[:, k, None] * orientation[..., :, k]
+        out.append(xp.broadcast_to(total, offsets.shape))
+    return out[0], out[1]
+
+
+def _sphere_poses(distance: float, a, p, xp):
+    """Position(s) and orientation(s) on the sphere, looking at the origin, for NumPy (host)
+    or jax.numpy (traced, inside x64) as ``xp``; scalar or 1-D angles."""
     sa, ca, sp, cp = xp.sin(a), xp.cos(a), xp.sin(p), xp.cos(p)
-    centre = radar.distance * xp.stack([sp * ca, sp * sa, cp])
-    u_t = xp.stack([-cp * ca, -cp * sa, sp])
-    u_r = xp.stack([-sa, ca, xp.zeros_like(a)])
-    m = radar.spacing * (xp.arange(radar.n_tx, dtype=xp.float64) + 0.5)
-    n = radar.spacing * (xp.arange(radar.n_rx, dtype=xp.float64) + 0.5)
-    return centre + m[:, None] * u_t, centre + n[:, None] * u_r
+    centre = distance * xp.stack([sp * ca, sp * sa, cp], axis=-1)
+    u_t = xp.stack([-cp * ca, -cp * sa, sp], axis=-1)
+    u_r = xp.stack([-sa, ca, xp.zeros_like(a)], axis=-1)
+    return centre, xp.stack([u_t, u_r, xp.cross(u_t, u_r)], axis=-1)
+
+
+def _look_at(positions: np.ndarray, look_at, up, where: str) -> np.ndarray:
+    """Orientations (n, 3, 3) whose z axes point from ``positions`` to ``look_at`` and whose
+    x axes lean to ``up``."""
+    target = as_finite_array(look_at, f"{where}: `look_at`", np.float64)
+    up = as_finite_array(up, f"{where}: `up`", np.float64)
+    if target.shape not in ((3,), positions.shape) or up.shape != (3,):
+        raise ValueError(
+            f"{where}: `look_at` must have shape (3,) or {positions.shape}, and `up` (3,); got "
+            f"{target.shape} and {up.shape}."
+        )
+    z = target - positions
+    length = np.linalg.norm(z, axis=1, keepdims=True)
+    if np.any(length == 0):
+        raise ValueError(f"{where}: a viewpoint looks at its own position (`look_at`).")
+    z = z / length
+    x = up - (z @ up)[:, None] * z
+    norm = np.linalg.norm(x, axis=1, keepdims=True)
+    if np.any(norm < 1e-9 * np.linalg.norm(up)) or not np.any(up):
+        raise ValueError(
+            f"{where}: `up` {tuple(up)} is along the line of sight of viewpoint(s) "
+            f"{np.flatnonzero(norm[:, 0] < 1e-9 * np.linalg.norm(up))[:5].tolist()}: give "
+            "another `up`, or `orientations`."
+        )
+    x = x / norm
+    return np.stack([x, np.cross(z, x), z], axis=-1)
+
+
+def _check_rotations(frames: np.ndarray, where: str) -> None:
+    gram = np.einsum("nij,nik->njk", frames, frames)
+    if not np.allclose(gram, np.eye(3), atol=1e-9) or np.any(np.linalg.det(frames) < 0):
+        raise ValueError(
+            f"{where} must be rotations (orthonormal columns, determinant +1), within 1e-9."
+        )

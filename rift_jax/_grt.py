@@ -13,10 +13,15 @@ Why it is computed the way it is (measured numbers in docs/conventions.md, "Prec
 - **Separable exponential.** exp(j k (r_t + r_r)) = exp(j k r_t) · exp(j k r_r), so for each
   frequency S_f = X_f · Y_fᵀ with X_f[m, v] = ρ_v a_vm exp(j k_f r_vm): a batch of small matrix
   products, 100·n_tx·n_rx·V complex multiply-adds per view.
-- **Separable amplitude.** 1/(r_t + r_r)² = 1/(4 r_t r_r) · 1/(1 + q), q = (r_t - r_r)²/(4 r_t r_r).
-  The array spans 2.3 cm, so q ≤ 2.7e-6 for a voxel 10 m away (1.5e-4 at the 10 m scene's
-  nearest corner, 1.3 m from the array); measured relative error of S for random scenes is
-  ~1e-6. The kernel uses 1/(4 r_t r_r) = (1/2r_t)(1/2r_r).
+- **Separable amplitude.** 1/(r_t + r_r)² = 1/(4 r_t r_r) · 1/(1 + q), q = (r_t - r_r)²/(4 r_t r_r),
+  and 1/(1 + q) = Σ_k (-q)^k. Expanded to order n, the amplitude is a sum of 2n + 1 separable
+  terms c_i · r_t^(i-1) · r_r^(-i-1), i = -n..n (`spreading_terms`), with relative error
+  ≤ q^(n+1) for every term of the sum. q ≤ D²/(4 r_min²) for antennas at most D apart and r_min
+  from the nearest point (`amplitude_bound`), and the smallest order that keeps this below
+  `AMPLITUDE_TOLERANCE` is used: the paper's array (D ≈ 3 cm) 8-10 m from its scene needs
+  order 0, one product 1/(4 r_t r_r); TX and RX apart (a bistatic pair, a sparse MIMO array)
+  need more terms, each one more contraction over the voxels. The bistatic radar equation's
+  1/(r_t r_r) is one exact term.
 - **Frequency ladder.** On a uniform grid f = f_0 + (iB + j)Δf, so exp(j k_f r) =
   [exp(j k_0 r) · exp(j B Δk r)^i] · exp(j Δk r)^j: three phasors per distance, powers by
   doubling, and one product per frequency. Non-uniform grids (or traced frequencies) take the
@@ -41,6 +46,7 @@ contracted in the other order. Autodiff through ``forward`` gives the same numbe
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -50,11 +56,19 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from ._geometry import C0
-from ._precision import Float64Pair, as_geometry, leading, to_float64
+from ._precision import Float64Pair, as_geometry, host_float64, leading, to_float64
 from ._sharding import over_voxels, pad_leading, pinned, split_voxels
 from ._validation import check_finite, check_positive_int, is_concrete
 
 _TWO_PI = 2.0 * math.pi
+# The largest relative error that the separable amplitude may put on any one term of the sum
+# (see "Separable amplitude" above): the GRT's accuracy bar (float32 within 1e-5 of the
+# float64 reference), held term by term, so that no scene (a lone scatterer next to the
+# array) can see more.
+AMPLITUDE_TOLERANCE = 1e-5
+# The largest order of the amplitude's expansion: beyond q ≈ 0.28 (TX and RX about as far
+# apart as the nearest point) it converges too slowly to be worth its 2n + 1 contractions.
+_MAX_ORDER = 8
 # Every product's precision, whatever the backend's or JAX's global default (see above).
 EXACT = jax.lax.Precision.HIGHEST
 
@@ -139,6 +153,122 @@ def _ladder_sizes(n: int) -> tuple[int, int]:
     return -(-n // n_fine), n_fine
 
 
+Spreading = tuple[tuple[float, int], ...] | None
+"""The amplitude as separable terms ``(c, i)``: c · r_t^(i-1) · r_r^(-i-1); None: 1 (far
+field). Static (hashable) in the kernels."""
+
+
+def amplitude_bound(separation: float, nearest: float) -> float:
+    """An upper bound on q = (r_t - r_r)²/(4 r_t r_r) for antennas at most ``separation``
+    metres apart, none nearer a point than ``nearest`` (|r_t - r_r| ≤ |tx - rx|)."""
+    if nearest <= 0:
+        return math.inf
+    return separation**2 / (4.0 * nearest**2)
+
+
+def spreading_terms(law: str, bound: float = 0.0) -> Spreading:
+    """The kernels' amplitude for a spreading ``law``: "far-field" (none), "radar-equation"
+    (1/(r_t r_r), one exact term) or "paper" (1/(r_t + r_r)², expanded to the smallest
+    order n whose error ``bound``^(n+1) is at most `AMPLITUDE_TOLERANCE`; ``bound`` from
+    `amplitude_bound`). Order n has the 2n + 1 terms c_i r_t^(i-1) r_r^(-i-1),
+    c_i = (-1)^i Σ_{k=|i|..n} C(2k, k+i) / 4^(k+1): the binomial expansion of
+    Σ_k (-q)^k / (4 r_t r_r)."""
+    if law == "far-field":
+        return None
+    if law == "radar-equation":
+        return ((1.0, 0),)
+    if law != "paper":
+        raise ValueError(f"`spreading` must be 'paper' or 'radar-equation', got {law!r}.")
+    order = 0
+    while bound ** (order + 1) > AMPLITUDE_TOLERANCE:
+        order += 1
+        if order > _MAX_ORDER:
+            raise ValueError(
+                f"The GRT's 1/(r_t + r_r)² cannot be separated to {AMPLITUDE_TOLERANCE:g} "
+                f"here: its expansion parameter reaches {bound:.3g} (transmitters and "
+                "receivers nearly as far apart as the nearest point is from them). Move the "
+                "scene away from the antennas, or use spreading='radar-equation' (1/(r_t r_r))."
+            )
+    return tuple(
+        (
+            (-1) ** abs(i)
+            * sum(math.comb(2 * k, k + i) / 4 ** (k + 1) for k in range(abs(i), order + 1)),
+            i,
+        )
+        for i in range(-order, order + 1)
+    )
+
+
+class Amplitude(NamedTuple):
+    """The kernels' amplitude (static): the separable ``terms`` in every voxel chunk; with
+    ``near``, a chunk whose largest q exceeds `AMPLITUDE_TOLERANCE` (read from its own
+    distances) takes the ``near`` terms instead. On CPU that is a conditional per chunk, and
+    only chunks close to the antennas pay for more terms; accelerators, which would run both
+    arms, take ``near`` everywhere."""
+
+    terms: Spreading = None
+    near: Spreading = None
+
+    @classmethod
+    def of(cls, law: str, bound: float = 0.0) -> Amplitude:
+        """The amplitude for ``law`` (see `spreading_terms`) where q ≤ ``bound``."""
+        terms = spreading_terms(law)
+        if law != "paper" or bound <= AMPLITUDE_TOLERANCE:
+            return cls(terms)
+        return cls(terms, spreading_terms(law, bound))
+
+    def everywhere(self) -> Spreading:
+        """The terms used where no conditional runs: ``near`` if any, else ``terms``."""
+        if self.near is not None and jax.default_backend() != "cpu":
+            return self.near
+        return self.terms
+
+
+def _needs_near_terms(points, tx, rx) -> Array:
+    """Whether this chunk's largest q = (r_t - r_r)²/(4 r_t r_r) exceeds the tolerance: a
+    bound over its antenna pairs from each point's nearest and farthest antennas. (A bound
+    from two distances per point, to each side's centroid, costs less but is ~3x looser on
+    the paper's array: 7-10 % of the chunks of a ±5 m scene took three terms, against none
+    here, measured.)"""
+    with jax.enable_x64(True):
+        r_t, r_r = _distances(points, tx), _distances(points, rx)
+        lo_t, hi_t, lo_r, hi_r = r_t.min(0), r_t.max(0), r_r.min(0), r_r.max(0)
+        spread = jnp.maximum(hi_t - lo_r, hi_r - lo_t)
+        return jnp.max(spread * spread / (4.0 * lo_t * lo_r)) > AMPLITUDE_TOLERANCE
+
+
+def _by_chunk(amplitude: Amplitude, work, points, tx, rx, *operands):
+    """``work(terms, points, tx, rx, *operands)`` for one chunk, with the terms its points
+    need (see `Amplitude`). The operands are passed to the conditional, not closed over:
+    inside a `shard_map` their device-dependence must reach both arms as it is."""
+    terms = amplitude.everywhere()
+    if amplitude.near is None or terms is amplitude.near:
+        return work(terms, points, tx, rx, *operands)
+    return jax.lax.cond(
+        _needs_near_terms(points, tx, rx),
+        functools.partial(work, amplitude.near),
+        functools.partial(work, amplitude.terms),
+        points,
+        tx,
+        rx,
+        *operands,
+    )
+
+
+def _side_amplitudes(terms: tuple[tuple[float, int], ...], r, transmit: bool, real_dtype):
+    """Each term's factor on one side, (n_terms, a, K) (float64 in, ``real_dtype`` out):
+    c·r_t^(i-1) on the TX side, r_r^(-i-1) on the RX side. One term splits its coefficient
+    as √|c| on each side (the paper's 0.5/r each), so its two factors are alike in size."""
+    inverse = 1.0 / r
+    out = []
+    for c, i in terms:
+        power = i - 1 if transmit else -i - 1
+        scale = math.sqrt(abs(c)) if len(terms) == 1 else (abs(c) if transmit else 1.0)
+        sign = -1.0 if (c < 0 and transmit) else 1.0
+        out.append((sign * scale) * (r**power if power > 0 else inverse ** (-power)))
+    return jnp.stack(out).astype(real_dtype)
+
+
 def _distances(points, antennas) -> Float[Array, "a v"]:
     """|x_v - antenna_a| in float64 (call inside ``jax.enable_x64``). Written elementwise: XLA
     turns a reduction over the size-3 axis into a slow library call."""
@@ -164,28 +294,35 @@ def _materialise(fn, flag, *args):
     return jax.lax.cond(flag, fn, zeros, *args)
 
 
-def _factors(points, tx, rx, plan: FrequencyPlan, frequencies, near_field, real_dtype, rho=None):
+def _factors(
+    points, tx, rx, plan: FrequencyPlan, frequencies, terms: Spreading, real_dtype, rho=None
+):
     """Phasor factors of one voxel chunk for each side: (coarse, fine), each a (re, im) pair,
-    such that for frequency f = i·B + j, coarse[i] · fine[j] = w · a · exp(j k_f r), with the
-    amplitude a = 1/(2r) (near field) or 1, and the weight w = ρ on the TX side when ``rho``
+    such that for frequency f = i·B + j, Σ_t coarse[i, :, t·K + v] · fine[j, :, t·K + v] =
+    w_v · a_v · exp(j k_f r) summed over the amplitude's separable ``terms`` t (`Spreading`;
+    one term: K columns, as many voxels), with the weight w = ρ on the TX side when ``rho``
     is given (else 1). ρ enters inside the first materialised stage, linearly: multiplied in
     later, XLA fuses it into the outer product and the forward runs 2x slower (measured).
 
     Uniform grid: three float64-reduced phasors per distance, exp(j k_0 r), exp(j Δk r) and
     exp(j B Δk r); fine[j] = exp(j Δk r)^j and coarse[i] = exp(j k_0 r) · exp(j B Δk r)^i by
     doubling (≤ 2 log2 √F complex roundings: ~1e-6 rad). Otherwise coarse holds every
-    frequency and fine is 1.
+    frequency and fine is 1. Several amplitude terms scale coarse once the ladder is built
+    (one ladder per distance, whatever the number of terms).
     """
     first = jax.tree.leaves(points)[0][0, 0]
     flag = (first == first) | jnp.isnan(first)  # true even for NaN: never silently drop a chunk
     n_coarse, n_fine = _ladder_sizes(plan.n)
+    n_terms = 1 if terms is None else len(terms)
 
     def phasors(points, tx, rx, rho):
         out = []
         with jax.enable_x64(True):
-            for antennas, weight in ((tx, rho), (rx, None)):
+            for transmit, antennas, weight in ((True, tx, rho), (False, rx, None)):
                 r = _distances(points, antennas)
-                amplitude = (0.5 / r).astype(real_dtype) if near_field else None
+                factors = None
+                if terms is not None:
+                    factors = _side_amplitudes(terms, r, transmit, real_dtype)
                 if plan.uniform:
                     k0, dk = _TWO_PI / C0 * plan.f0, _TWO_PI / C0 * plan.df
                     base = _cis(k0, r, real_dtype)
@@ -193,22 +330,28 @@ def _factors(points, tx, rx, plan: FrequencyPlan, frequencies, near_field, real_
                 else:
                     k = _TWO_PI / C0 * to_float64(frequencies)
                     base, steps = _cis(k[:, None, None], r, real_dtype), None
-                if amplitude is not None:
-                    base = (base[0] * amplitude, base[1] * amplitude)
+                if n_terms == 1 and factors is not None:
+                    base, factors = (base[0] * factors[0], base[1] * factors[0]), None
                 if weight is not None:
                     base = _cmul(base, (jnp.real(weight), jnp.imag(weight)))
-                out.append((base, steps))
+                out.append((base, steps, factors))
         return out
 
     def ladders(sides):
         out = []
-        for base, steps in sides:
+        for base, steps, factors in sides:
             if steps is None:  # direct path: all frequencies are in `base` already
                 one = jnp.ones_like(base[0][:1])  # varies over shard_map axes as `base` does
-                out.append((base, (one, jnp.zeros_like(one))))
-                continue
-            coarse = _cmul(_powers(steps[1], n_coarse), (base[0][None], base[1][None]))
-            out.append((coarse, _powers(steps[0], n_fine)))
+                coarse, fine = base, (one, jnp.zeros_like(one))
+            else:
+                coarse = _cmul(_powers(steps[1], n_coarse), (base[0][None], base[1][None]))
+                fine = _powers(steps[0], n_fine)
+            if factors is not None:  # each term's columns: coarse scaled, fine repeated
+                coarse = tuple(
+                    jnp.concatenate([c * f[None] for f in factors], axis=-1) for c in coarse
+                )
+                fine = tuple(jnp.concatenate([f] * n_terms, axis=-1) for f in fine)
+            out.append((coarse, fine))
         return out
 
     sides = _materialise(phasors, flag, points, tx, rx, rho)
@@ -241,6 +384,14 @@ def default_chunk(adjoint: bool = False) -> int:
     return 128 if adjoint else 64
 
 
+def _per_term(chunk: int, amplitude: Amplitude) -> int:
+    """Voxels per chunk when each carries one column per amplitude term (in every chunk:
+    `Amplitude.everywhere`): the contraction stays ``chunk`` long, so a chunk's operands stay
+    as large as with one term (3 terms with 3x the voxels per chunk: 5x slower, measured)."""
+    terms = amplitude.everywhere()
+    return max(8, chunk // (1 if terms is None else len(terms)))
+
+
 def chunk_length(n_points: int, chunk_size: int) -> int:
     """The chunk actually used: at most ``chunk_size``, with the points spread evenly over the
     chunks (rounded up to a multiple of 8), so padding stays small."""
@@ -257,7 +408,7 @@ def _zeros(shape, dtype, *like: Array) -> Array:
     return jnp.broadcast_to(seed, shape)
 
 
-def _forward_kernel(points, tx, rx, frequencies, rho, *, plan, near_field, chunk):
+def _forward_kernel(points, tx, rx, frequencies, rho, *, plan, amplitude, chunk):
     """S for one viewpoint: a scan over voxel chunks, each one real batched product
     [Xr; Xi]·[Yr; Yi]ᵀ per frequency ((F, 2M, K)·(F, 2N, K) → (F, 2M, 2N)), from whose blocks
     S = (XrYr - XiYi) + j(XrYi + XiYr).
@@ -267,17 +418,20 @@ def _forward_kernel(points, tx, rx, frequencies, rho, *, plan, near_field, chunk
     chunk by chunk instead of storing F·(n_tx + n_rx)·V of them.
     """
     real_dtype = jnp.finfo(rho.dtype).dtype
-    chunk = chunk_length(leading(points), chunk or default_chunk())
+    chunk = chunk_length(leading(points), _per_term(chunk or default_chunk(), amplitude))
     n_tx, n_rx = tx.shape[0], rx.shape[0]
 
-    @jax.checkpoint
-    def partial_sum(p, r):
+    def work(terms, p, tx, rx, frequencies, r):
         (coarse_t, fine_t), (coarse_r, fine_r) = _factors(
-            p, tx, rx, plan, frequencies, near_field, real_dtype, r
+            p, tx, rx, plan, frequencies, terms, real_dtype, r
         )
         x = _stack_frequencies(coarse_t, fine_t, plan.n)
         y = _stack_frequencies(coarse_r, fine_r, plan.n)
         return jnp.einsum("fmk,fnk->fmn", x, y, precision=EXACT)
+
+    @jax.checkpoint
+    def partial_sum(p, r):
+        return _by_chunk(amplitude, work, p, tx, rx, frequencies, r)
 
     def step(total, xs):
         return total + partial_sum(*xs), None
@@ -289,38 +443,44 @@ def _forward_kernel(points, tx, rx, frequencies, rho, *, plan, near_field, chunk
     return jax.lax.complex(re, im)
 
 
-def _adjoint_kernel(points, tx, rx, frequencies, signal, *, plan, near_field, chunk):
+def _adjoint_kernel(points, tx, rx, frequencies, signal, *, plan, amplitude, chunk):
     """ρ̂_v = Σ_{f,m,n} conj(X[f,m,v] Y[f,n,v]) S[f,m,n], chunk by chunk: T = S·conj(Y) as
     one real batched product [[Sr, Si], [Si, -Sr]]·[Yr; Yi] = [Tr; Ti], then Σ_{f,m} conj(X)·T."""
     real_dtype = jnp.finfo(signal.dtype).dtype
     n = leading(points)
-    chunk = chunk_length(n, chunk or default_chunk(adjoint=True))
+    chunk = chunk_length(n, _per_term(chunk or default_chunk(adjoint=True), amplitude))
     n_tx = tx.shape[0]
     sr, si = jnp.real(signal), jnp.imag(signal)
     mix = jnp.concatenate([jnp.concatenate([sr, si], 2), jnp.concatenate([si, -sr], 2)], 1)
 
-    def step(p):
+    def work(terms, p, tx, rx, frequencies, mix):
         (coarse_t, fine_t), (coarse_r, fine_r) = _factors(
-            p, tx, rx, plan, frequencies, near_field, real_dtype
+            p, tx, rx, plan, frequencies, terms, real_dtype
         )
         x = _stack_frequencies(coarse_t, fine_t, plan.n)
         y = _stack_frequencies(coarse_r, fine_r, plan.n)
         t = jnp.einsum("fij,fjk->fik", mix, y, precision=EXACT)
         xr, xi, tr, ti = x[:, :n_tx], x[:, n_tx:], t[:, :n_tx], t[:, n_tx:]
-        return jax.lax.complex(
-            jnp.sum(xr * tr + xi * ti, axis=(0, 1)), jnp.sum(xr * ti - xi * tr, axis=(0, 1))
-        )
+        re = jnp.sum(xr * tr + xi * ti, axis=(0, 1))
+        im = jnp.sum(xr * ti - xi * tr, axis=(0, 1))
+        n_terms = 1 if terms is None else len(terms)
+        if n_terms > 1:  # each voxel's column per amplitude term (see `_factors`)
+            re, im = re.reshape(n_terms, -1).sum(0), im.reshape(n_terms, -1).sum(0)
+        return jax.lax.complex(re, im)
+
+    def step(p):
+        return _by_chunk(amplitude, work, p, tx, rx, frequencies, mix)
 
     return jax.lax.map(step, _chunked(points, chunk)).reshape(-1)[:n]
 
 
-def forward_view(points, tx, rx, frequencies, rho, *, plan, near_field, chunk, split=True):
+def forward_view(points, tx, rx, frequencies, rho, *, plan, amplitude, chunk, split=True):
     """`_forward_kernel` with the voxels split over the devices when that pays
     (`rift_jax._sharding.split_voxels`; never with ``split=False``)."""
     chunk = chunk or default_chunk()
 
     def local(points, rho, shared):
-        return _forward_kernel(points, *shared, rho, plan=plan, near_field=near_field, chunk=chunk)
+        return _forward_kernel(points, *shared, rho, plan=plan, amplitude=amplitude, chunk=chunk)
 
     shared = (tx, rx, frequencies)
     if not (split and split_voxels(leading(points), chunk, points, rho, shared)):
@@ -328,12 +488,12 @@ def forward_view(points, tx, rx, frequencies, rho, *, plan, near_field, chunk, s
     return over_voxels(local, points, rho, shared, reduce=True)
 
 
-def adjoint_view(points, tx, rx, frequencies, signal, *, plan, near_field, chunk, split=True):
+def adjoint_view(points, tx, rx, frequencies, signal, *, plan, amplitude, chunk, split=True):
     """`_adjoint_kernel` with the voxels split over the devices when that pays."""
     chunk = chunk or default_chunk(adjoint=True)
 
     def local(points, _, shared):
-        return _adjoint_kernel(points, *shared, plan=plan, near_field=near_field, chunk=chunk)
+        return _adjoint_kernel(points, *shared, plan=plan, amplitude=amplitude, chunk=chunk)
 
     shared = (tx, rx, frequencies, signal)
     if not (split and split_voxels(leading(points), chunk, points, shared)):
@@ -344,17 +504,17 @@ def adjoint_view(points, tx, rx, frequencies, signal, *, plan, near_field, chunk
 # The public entry points, compiled once per shape and configuration: without this, a plain
 # call traces and compiles the whole scan again every time (0.8 s against 0.04 s, measured).
 # `split` is decided outside the jit (`_call`).
-_STATIC = ("plan", "near_field", "chunk", "split")
+_STATIC = ("plan", "amplitude", "chunk", "split")
 _forward_jit = jax.jit(forward_view, static_argnames=_STATIC)
 _adjoint_jit = jax.jit(adjoint_view, static_argnames=_STATIC)
 
 
-def _call(jitted, points, tx, rx, freqs, data, plan, near_field, chunk):
+def _call(jitted, points, tx, rx, freqs, data, plan, amplitude, chunk):
     """A jitted entry point, with the voxel split decided here, outside the jit, where an
     input pinned to one device can still be seen (`rift_jax._sharding.pinned`)."""
     split = not pinned((points, tx, rx, freqs, data))
     return jitted(
-        points, tx, rx, freqs, data, plan=plan, near_field=near_field, chunk=chunk, split=split
+        points, tx, rx, freqs, data, plan=plan, amplitude=amplitude, chunk=chunk, split=split
     )
 
 
@@ -368,6 +528,32 @@ def _check_geometry(points, tx, rx) -> None:
         if len(shape) != 2 or shape[1] != 3 or shape[0] == 0:
             raise ValueError(f"`{name}` must have shape (n, 3) with n ≥ 1 (metres), got {shape}.")
         check_finite(arr, f"`{name}`")
+
+
+# The bound assumed for geometry that cannot be read (traced): q ≤ 3e-3, antennas within
+# ~0.1 of the nearest point's distance of each other (order 1: error ≤ 9e-6).
+_TRACED_BOUND = 3e-3
+
+
+def _amplitude(points, tx, rx, near_field, spreading) -> Amplitude:
+    """The kernels' `Amplitude` for one view's geometry (host values, `Float64Pair`s or
+    arrays), read from the antennas' largest separation and a lower bound on their
+    distance to the points: from the antennas' centroid, less their spread around it
+    (O(points + antennas) on the host, ~1 ms for the paper's radar on 26³ points)."""
+    if not near_field:
+        return Amplitude.of("far-field")
+    if spreading != "paper":
+        return Amplitude.of(spreading)
+    if not is_concrete((points, tx, rx)):  # the traced bound's terms in every chunk: no
+        # conditional, which a vmap inside the voxel split cannot carry
+        return Amplitude(spreading_terms(spreading, _TRACED_BOUND))
+    p, t, r = (host_float64(x) for x in (points, tx, rx))
+    separation = float(np.max(np.linalg.norm(t[:, None] - r[None], axis=-1)))
+    antennas = np.concatenate([t, r])
+    centroid = antennas.mean(0)
+    spread = float(np.max(np.linalg.norm(antennas - centroid, axis=1)))
+    nearest = float(np.min(np.linalg.norm(p - centroid, axis=1))) - spread
+    return Amplitude.of(spreading, amplitude_bound(separation, nearest))
 
 
 def _prepare(points, tx, rx, frequencies, chunk_size):
@@ -387,6 +573,7 @@ def forward(
     frequencies: Float[Array, " n_freq"],
     *,
     near_field: bool = True,
+    spreading: str = "paper",
     chunk_size: int | None = None,
 ) -> Complex[Array, "n_freq n_tx n_rx"]:
     """The raw (un-normalised) GRT of one viewpoint:
@@ -401,7 +588,13 @@ def forward(
       inputs keep full float64 precision whether or not x64 is on; float32 device arrays and
       traced values are taken as they are. Geometry is always evaluated in float64.
     - `frequencies`: Hz, 1-D. A uniform grid known at trace time takes the fast ladder.
-    - `near_field`: include the 1/R_b² spreading factor.
+    - `near_field`: include the spreading factor (``False``: amplitude 1, the far field).
+    - `spreading`: the near field's law: "paper", 1/R_b² with R_b = r_t + r_r (the paper's
+      F_NF), or "radar-equation", 1/(r_t r_r). The paper's law is separated into as many
+      terms as this geometry needs for `AMPLITUDE_TOLERANCE` (one for antennas a few
+      centimetres apart, ~10 m away). Traced geometry cannot be read: it gets three terms,
+      exact to 1e-5 while the antennas stay within ~0.1 of the nearest point's distance of
+      each other.
     - `chunk_size`: voxels per scan step (memory/speed trade-off; results do not depend on it).
 
     **Returns:** complex S of shape (n_freq, n_tx, n_rx).
@@ -409,7 +602,9 @@ def forward(
     Linear in ρ and plain JAX: jit, vmap, grad and `jax.linear_transpose` all apply (the
     transpose equals `adjoint`, conjugated). Not meant to be differentiated in the geometry.
     """
-    (points, tx, rx, freqs), plan = _prepare(points, tx, rx, frequencies, chunk_size)
+    geometry, plan = _prepare(points, tx, rx, frequencies, chunk_size)
+    amplitude = _amplitude(points, tx, rx, near_field, spreading)  # read before any staging
+    (points, tx, rx, freqs) = geometry
     reflectivity = jnp.asarray(reflectivity)
     if reflectivity.shape != (leading(points),):
         raise ValueError(
@@ -418,7 +613,7 @@ def forward(
         )
     check_finite(reflectivity, "`reflectivity`")
     reflectivity = reflectivity.astype(_complex_dtype(reflectivity))
-    return _call(_forward_jit, points, tx, rx, freqs, reflectivity, plan, near_field, chunk_size)
+    return _call(_forward_jit, points, tx, rx, freqs, reflectivity, plan, amplitude, chunk_size)
 
 
 def adjoint(
@@ -429,12 +624,15 @@ def adjoint(
     frequencies: Float[Array, " n_freq"],
     *,
     near_field: bool = True,
+    spreading: str = "paper",
     chunk_size: int | None = None,
 ) -> Complex[Array, " n_points"]:
     """Backprojection: the exact conjugate transpose of `forward` in ρ,
     ``ρ̂_v = Σ_{f,m,n} conj(exp(j k_f R_b) A) S[f, m, n]``, so that
     ``<forward(ρ), S> = <ρ, adjoint(S)>``. Arguments as for `forward`."""
-    (points, tx, rx, freqs), plan = _prepare(points, tx, rx, frequencies, chunk_size)
+    geometry, plan = _prepare(points, tx, rx, frequencies, chunk_size)
+    amplitude = _amplitude(points, tx, rx, near_field, spreading)  # read before any staging
+    (points, tx, rx, freqs) = geometry
     signal = jnp.asarray(signal)
     expected = (plan.n, tx.shape[0], rx.shape[0])
     if signal.shape != expected:
@@ -443,4 +641,4 @@ def adjoint(
         )
     check_finite(signal, "`signal`")
     signal = signal.astype(_complex_dtype(signal))
-    return _call(_adjoint_jit, points, tx, rx, freqs, signal, plan, near_field, chunk_size)
+    return _call(_adjoint_jit, points, tx, rx, freqs, signal, plan, amplitude, chunk_size)

@@ -23,8 +23,8 @@ import numpy as np
 from jaxtyping import Array, Bool, Complex, Float, Int
 
 from . import _grt
-from ._geometry import Radar, Viewpoints, antenna_positions
-from ._precision import Float64Pair, leading, split, to_float64
+from ._geometry import Radar, Viewpoints, antennas_at
+from ._precision import Float64Pair, host_float64, leading, split, to_float64
 from ._sharding import over_views
 from ._validation import (
     as_finite_array,
@@ -44,11 +44,13 @@ def _views_per_batch() -> int:
 class GRT(eqx.Module):
     """The Generalized Radon Transform for a fixed radar, viewpoints and grid points.
 
-    ``GRT(ρ)[i] = grt.forward(points, ρ, *antenna_positions(radar, az_i, pol_i), freqs)``,
-    shape (n_views, n_freq, n_tx, n_rx); `adjoint` is its exact conjugate transpose.
-    Viewpoint angles and points are array leaves held as float32 (hi, lo) pairs, so they keep
-    float64 precision without x64 (`rift_jax._precision`); distances and phases are computed
-    in float64, see `rift_jax.grt`.
+    ``GRT(ρ)[i] = grt.forward(points, ρ, *antennas_at(radar, *pose_i), freqs)``, shape
+    (n_views, n_freq, n_tx, n_rx); `adjoint` is its exact conjugate transpose. The
+    viewpoints' poses (positions and orientations, `Viewpoints.poses`) and the points are
+    array leaves held as float32 (hi, lo) pairs, so they keep float64 precision without x64
+    (`rift_jax._precision`); distances and phases are computed in float64, see
+    `rift_jax.grt`. ``amplitude`` is the kernels' separable spreading factor, chosen for
+    these points and poses (`grt_operator`).
 
     ``live`` (None: every point) marks the points that exist: the GRT is then A·diag(live),
     whose other columns are zero, so ρ there changes no signal and gets no backprojection.
@@ -58,15 +60,16 @@ class GRT(eqx.Module):
     """
 
     radar: Radar = eqx.field(static=True)
-    azimuth: Float64Pair
-    polar: Float64Pair
+    positions: Float64Pair
+    orientations: Float64Pair
     points: Float64Pair
     chunk_size: int | None = eqx.field(static=True, default=None)
     live: Bool[Array, " n_points"] | None = None
+    amplitude: _grt.Amplitude = eqx.field(static=True, default=_grt.Amplitude())
 
     @property
     def n_views(self) -> int:
-        return leading(self.azimuth)
+        return leading(self.positions)
 
     @property
     def n_points(self) -> int:
@@ -76,15 +79,22 @@ class GRT(eqx.Module):
     def out_shape(self) -> tuple[int, int, int, int]:
         return (self.n_views, *self.radar.signal_shape)
 
-    def _geometry(self, azimuth, polar):
+    def _geometry(self, position, orientation):
         with jax.enable_x64(True):
-            tx, rx = antenna_positions(self.radar, to_float64(azimuth), to_float64(polar))
+            tx, rx = antennas_at(self.radar, to_float64(position), to_float64(orientation))
         return self.points, tx, rx, self.radar.frequencies
 
     def on(self, points: Float64Pair, live: Bool[Array, " k"] | None = None) -> GRT:
         """The same radar and viewpoints on other ``points`` (a float32 pair, see
-        `rift_jax._precision.split`), of which ``live`` exist (None: all)."""
-        return GRT(self.radar, self.azimuth, self.polar, points, self.chunk_size, live)
+        `rift_jax._precision.split`), of which ``live`` exist (None: all). The amplitude
+        is chosen again for them when they are concrete (it is kept otherwise)."""
+        amplitude = self.amplitude
+        if is_concrete(points):
+            positions, kept = (host_float64(x) for x in (self.positions, points))
+            amplitude = _amplitude_for(self.radar, positions, kept)
+        return GRT(
+            self.radar, self.positions, self.orientations, points, self.chunk_size, live, amplitude
+        )
 
     def live_points(self) -> np.ndarray:
         """Which points exist, as a boolean NumPy array (all of them without padding), for
@@ -105,8 +115,8 @@ class GRT(eqx.Module):
     def subset(self, index: Int[Array, " k"]) -> GRT:
         """The GRT of viewpoints ``index`` only (an integer array, may be traced): a batch of
         row blocks. Calling it spreads those viewpoints over devices, as for the whole."""
-        angles = jax.tree.map(lambda a: a[index], (self.azimuth, self.polar))
-        return eqx.tree_at(lambda g: (g.azimuth, g.polar), self, angles)
+        poses = jax.tree.map(lambda a: a[index], (self.positions, self.orientations))
+        return eqx.tree_at(lambda g: (g.positions, g.orientations), self, poses)
 
     def view(self, rho: Complex[Array, " n_points"], index) -> Complex[Array, "f m n"]:
         """The signal of viewpoint ``index`` (may be traced): one row block of the operator.
@@ -127,14 +137,17 @@ class GRT(eqx.Module):
             raise ValueError(f"GRT: `rho` must have shape ({self.n_points},), got {rho.shape}.")
         rho = self.masked(rho)
 
-        def local(azimuth, polar, rho):
+        def local(positions, orientations, rho):
+            batch = _views_per_batch()  # one: a plain loop, so the kernels' per-chunk
+            # conditionals stay conditionals (a vmap, even of one view, runs both arms)
             return jax.lax.map(
-                lambda ap: self._kernel(_grt.forward_view, rho, *ap),
-                (azimuth, polar),
-                batch_size=_views_per_batch(),
+                lambda pose: self._kernel(_grt.forward_view, rho, *pose),
+                (positions, orientations),
+                batch_size=batch if batch > 1 else None,
             )
 
-        return over_views(local, self.azimuth, self.polar, rho, reduce=False)[: self.n_views]
+        poses = (self.positions, self.orientations)
+        return over_views(local, *poses, rho, reduce=False)[: self.n_views]
 
     @eqx.filter_jit
     def adjoint(self, signal: Complex[Array, "v f m n"]) -> Complex[Array, " n_points"]:
@@ -146,29 +159,31 @@ class GRT(eqx.Module):
                 f"GRT.adjoint: `signal` must have shape {self.out_shape}, got {signal.shape}."
             )
 
-        def local(azimuth, polar, signal):
+        def local(positions, orientations, signal):
             def step(acc, xs):
-                a, p, s = xs
-                return acc + self._kernel(_grt.adjoint_view, s, a, p), None
+                position, orientation, s = xs
+                return acc + self._kernel(_grt.adjoint_view, s, position, orientation), None
 
-            leaves = jax.tree.leaves((azimuth, polar))  # per-device inside shard_map
+            leaves = jax.tree.leaves((positions, orientations))  # per-device in shard_map
             zero = _grt._zeros((self.n_points,), signal.dtype, *leaves)
-            return jax.lax.scan(step, zero, (azimuth, polar, signal))[0]
+            return jax.lax.scan(step, zero, (positions, orientations, signal))[0]
 
-        return self.masked(over_views(local, self.azimuth, self.polar, signal, reduce=True))
+        poses = (self.positions, self.orientations)
+        return self.masked(over_views(local, *poses, signal, reduce=True))
 
-    def _kernel(self, kernel, data, azimuth, polar):
+    def _kernel(self, kernel, data, position, orientation):
         """``kernel`` (`forward_view` or `adjoint_view`: split over voxels where that
-        applies) for one viewpoint's angles."""
-        points, tx, rx, freqs = self._geometry(azimuth, polar)
+        applies) for one viewpoint's pose."""
+        points, tx, rx, freqs = self._geometry(position, orientation)
+        plan = _grt.frequency_plan(freqs)
         return kernel(
             points,
             tx,
             rx,
-            None,
+            None if plan.uniform else split(freqs),
             data,
-            plan=_grt.frequency_plan(freqs),
-            near_field=self.radar.near_field,
+            plan=plan,
+            amplitude=self.amplitude,
             chunk=self.chunk_size,
         )
 
@@ -176,8 +191,8 @@ class GRT(eqx.Module):
 @eqx.filter_jit
 def _row(fn: GRT, kernel, data, index):
     """One row block (``kernel`` is `forward_view` or `adjoint_view`), jitted once per shape."""
-    angles = jax.tree.map(lambda a: a[index], (fn.azimuth, fn.polar))
-    return fn._kernel(kernel, data, *angles)
+    pose = jax.tree.map(lambda a: a[index], (fn.positions, fn.orientations))
+    return fn._kernel(kernel, data, *pose)
 
 
 class GRTOperator(lx.AbstractLinearOperator):
@@ -293,14 +308,15 @@ def grt_operator(
         raise ValueError(
             f"grt_operator: `grid_points` must have shape (V, 3) with V ≥ 1, got {points.shape}."
         )
-    if (reach := float(np.max(np.linalg.norm(points, axis=1)))) >= radar.distance:
-        # every antenna stands at least `distance` from the centre, so this keeps the
-        # points off them, where the GRT's 1/R amplitudes diverge (a voxel at an antenna
-        # gave |S| ≈ 1e9 and swamped every other voxel)
+    positions, orientations = viewpoints.poses(radar)
+    reach, distance = _reach(positions, points)
+    if reach >= distance:
+        # this keeps the points off the antennas, where the GRT's 1/R amplitudes diverge (a
+        # voxel at an antenna gave |S| ≈ 1e9 and swamped every other voxel)
         raise ValueError(
             f"grt_operator: `grid_points` reach {reach:.4g} m from the scene's centre, but the "
-            f"radar stands {radar.distance:g} m away (Radar.distance): every point must lie "
-            "closer to the centre than the radar."
+            f"radar stands {distance:g} m away (Radar.distance, or the nearest pose): every "
+            "point must lie closer to the centre than the radar."
         )
     if chunk_size is not None:
         check_positive_int("grt_operator: `chunk_size`", chunk_size)
@@ -315,5 +331,26 @@ def grt_operator(
     if pad_to is not None:  # on the host: an eager jnp.pad would compile for every size
         live = jnp.asarray(np.arange(pad_to) < len(points))
         points = np.pad(points, ((0, pad_to - len(points)), (0, 0)), mode="edge")
-    angles = split(viewpoints.azimuth), split(viewpoints.polar)
-    return GRTOperator(GRT(radar, *angles, split(points), chunk_size, live))
+    amplitude = _amplitude_for(radar, positions, points)
+    poses = split(positions), split(orientations)
+    return GRTOperator(GRT(radar, *poses, split(points), chunk_size, live, amplitude))
+
+
+def _reach(positions: np.ndarray, points: np.ndarray) -> tuple[float, float]:
+    """How far ``points`` reach from the scene's centre (the origin) and how near the
+    nearest viewpoint stands to it: a bound on the points' distance to the viewpoints, in
+    O(views + points) on the host."""
+    reach = float(np.max(np.linalg.norm(points, axis=1)))
+    return reach, float(np.min(np.linalg.norm(positions, axis=1)))
+
+
+def _amplitude_for(radar: Radar, positions: np.ndarray, points: np.ndarray) -> _grt.Amplitude:
+    """The kernels' `rift_jax.grt.Amplitude` for this radar at these viewpoints' positions
+    and these points: its error bound from the antennas' largest separation and a lower
+    bound on their distance to the points."""
+    if not radar.near_field:
+        return _grt.Amplitude.of("far-field")
+    antennas = max(float(np.max(np.linalg.norm(o, axis=1))) for o in radar.offsets)
+    reach, distance = _reach(positions, points)
+    nearest = distance - reach - antennas
+    return _grt.Amplitude.of(radar.spreading, _grt.amplitude_bound(radar.separation, nearest))

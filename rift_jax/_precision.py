@@ -59,6 +59,13 @@ def to_float64(x) -> Array:
     return jnp.asarray(x).astype(jnp.float64)
 
 
+def host_float64(x) -> np.ndarray:
+    """float64 NumPy value of a concrete `Float64Pair` or array."""
+    if isinstance(x, Float64Pair):
+        return np.asarray(x.hi, np.float64) + np.asarray(x.lo, np.float64)
+    return np.asarray(x, np.float64)
+
+
 def leading(x) -> int:
     """Length of the leading axis of an array or pair."""
     return jax.tree.leaves(x)[0].shape[0]

@@ -310,9 +310,12 @@ def screened(signal, viewpoints, points, radar, fraction: float, where=None) -> 
     where `fast_backprojection` reaches ``fraction`` of its own maximum over them: those the
     exact adjoint must visit. Every such point, in order, if the screen has nothing to say
     (all zero, or not finite: the exact path then meets the same input and says what is
-    wrong with it)."""
+    wrong with it) or cannot read this radar (the fast backprojection is written for the
+    paper's L with uniform frequencies, `Radar.is_paper_array`)."""
     if where is not None and not np.any(where):
         raise ValueError("screened: `where` marks no point to screen.")
+    if not radar.is_paper_array:
+        return np.arange(len(points)) if where is None else np.flatnonzero(where)
     fast = np.abs(np.asarray(fast_backprojection(signal, viewpoints, points, radar)))
     if where is not None:
         fast = np.where(where, fast, 0)
@@ -338,6 +341,10 @@ def largest_backprojection(signal, viewpoints, points, radar, where=None) -> flo
     residual like noise), it is the largest of the brightest ones screened, within the
     screen's error of the maximum."""
     candidates = screened(signal, viewpoints, points, radar, SCREEN_MARGIN, where)
+    if not radar.is_paper_array:  # not screened, so not ordered: every point, exactly
+        return float(
+            exact_backprojection(signal, viewpoints, points[candidates], radar, pad=True).max()
+        )
     candidates = candidates[:_LARGEST_CANDIDATES]
     exact = exact_backprojection(  # one size: compiled once, whatever the screen keeps
         signal, viewpoints, points[candidates], radar, pad=True, at_least=_LARGEST_CANDIDATES

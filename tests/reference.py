@@ -1,5 +1,6 @@
 """An independent, slow float64 NumPy GRT: a direct loop over frequencies with the exact
-bistatic range and the exact 1/R_b² factor. Written from the paper's equations only."""
+bistatic range and the exact 1/R_b² factor (or the bistatic radar equation's 1/(r_t r_r)).
+Written from the paper's equations only."""
 
 from __future__ import annotations
 
@@ -18,13 +19,21 @@ def antenna_positions(distance, spacing, n_tx, n_rx, azimuth, polar):
     return tx, rx
 
 
-def forward(points, rho, tx, rx, frequencies, near_field=True):
+def _amplitude(r_t, r_r, near_field, spreading):
+    r_b = r_t[:, :, None] + r_r[:, None, :]  # (V, n_tx, n_rx)
+    if not near_field:
+        return r_b, np.ones_like(r_b)
+    if spreading == "radar-equation":
+        return r_b, 1.0 / (r_t[:, :, None] * r_r[:, None, :])
+    return r_b, 1.0 / r_b**2
+
+
+def forward(points, rho, tx, rx, frequencies, near_field=True, spreading="paper"):
     points = np.asarray(points, np.float64)
     rho = np.asarray(rho, np.complex128)
     r_t = np.linalg.norm(points[:, None, :] - np.asarray(tx, np.float64)[None], axis=-1)
     r_r = np.linalg.norm(points[:, None, :] - np.asarray(rx, np.float64)[None], axis=-1)
-    r_b = r_t[:, :, None] + r_r[:, None, :]  # (V, n_tx, n_rx)
-    amplitude = 1.0 / r_b**2 if near_field else np.ones_like(r_b)
+    r_b, amplitude = _amplitude(r_t, r_r, near_field, spreading)
     out = np.empty((len(frequencies), tx.shape[0], rx.shape[0]), np.complex128)
     for i, f in enumerate(np.asarray(frequencies, np.float64)):
         k = 2 * np.pi * f / C0
@@ -32,12 +41,11 @@ def forward(points, rho, tx, rx, frequencies, near_field=True):
     return out
 
 
-def adjoint(points, signal, tx, rx, frequencies, near_field=True):
+def adjoint(points, signal, tx, rx, frequencies, near_field=True, spreading="paper"):
     points = np.asarray(points, np.float64)
     r_t = np.linalg.norm(points[:, None, :] - np.asarray(tx, np.float64)[None], axis=-1)
     r_r = np.linalg.norm(points[:, None, :] - np.asarray(rx, np.float64)[None], axis=-1)
-    r_b = r_t[:, :, None] + r_r[:, None, :]
-    amplitude = 1.0 / r_b**2 if near_field else np.ones_like(r_b)
+    r_b, amplitude = _amplitude(r_t, r_r, near_field, spreading)
     out = np.zeros(points.shape[0], np.complex128)
     for i, f in enumerate(np.asarray(frequencies, np.float64)):
         k = 2 * np.pi * f / C0

@@ -393,10 +393,11 @@ def test_the_wrong_phase_sign_mirrors_the_data(measured, tmp_path):
     np.testing.assert_allclose(read.signal, np.conj(data.signal), atol=2e-7)
 
 
-def test_antennas_rift_jax_cannot_place_are_refused_by_name(measured, tmp_path):
+def test_the_authors_cross_reads_as_a_radar_of_its_own(measured, tmp_path):
     """The authors' simulator puts centred TX and RX arrays on a cross (TX along the look-at
-    frame's 'right', RX along its 'up'); rift_jax's Radar is a one-sided L, and its GRT takes
-    no raw positions, so such a file is refused, saying which positions and by how much."""
+    frame's 'right', RX along its 'up'): not the paper's L, so it reads as
+    `Radar.from_antennas` at `Viewpoints.from_poses`, which put every antenna back where
+    the file has it."""
     _, data = measured
     radar, views = data.radar, data.viewpoints
     antennas = []
@@ -408,8 +409,19 @@ def test_antennas_rift_jax_cannot_place_are_refused_by_name(measured, tmp_path):
         up = np.array([-np.cos(p) * np.cos(a), -np.cos(p) * np.sin(a), np.sin(p)])
         offsets = lambda n: (np.arange(n) - (n - 1) / 2)[:, None] * radar.spacing  # noqa: E731
         antennas.append((centre + offsets(radar.n_tx) * right, centre + offsets(radar.n_rx) * up))
-    path = write_rift_public(tmp_path / "cross.npz", data, antennas=antennas)
-    with pytest.raises(ValueError, match=r"`tx_pos` does not follow rift_jax's antenna layout"):
+    read_back = rj.load_rift_public(
+        write_rift_public(tmp_path / "cross.npz", data, antennas=antennas)
+    )
+    assert not read_back.radar.is_paper_array and read_back.viewpoints.positions is not None
+    for view, (tx, rx) in enumerate(antennas):
+        pose = (read_back.viewpoints.positions[view], read_back.viewpoints.orientations[view])
+        placed = rj.antennas_at(read_back.radar, *pose)
+        np.testing.assert_allclose(placed[0], tx, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(placed[1], rx, rtol=0, atol=1e-9)
+    # a file whose array changes shape between views is no one radar: refused by name
+    antennas[3] = (antennas[3][0] + np.array([0.0, 0.0, 2e-3]), antennas[3][1])
+    path = write_rift_public(tmp_path / "bent.npz", data, antennas=antennas)
+    with pytest.raises(ValueError, match=r"`tx_pos` is not one array moved from view to view"):
         rj.load_rift_public(path)
 
 
@@ -445,7 +457,10 @@ def test_bad_files_in_the_authors_layout_are_refused_by_name(measured, tmp_path)
             ),
             "`metadata_json` lacks 'radar_fc_hz'",
         ),
-        (dict(viewpoint_positions=np.ones((12, 3)) * np.arange(12)[:, None]), "one `distance`"),
+        (
+            dict(viewpoint_positions=np.ones((12, 3)) * np.arange(12)[:, None]),
+            "`viewpoint_positions` give no pose",  # the first at the target itself
+        ),
     ]
     for changes, message in cases:
         with pytest.raises(ValueError, match=message):

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._fit import FitResult
-from .._geometry import Radar, Viewpoints, antenna_positions
+from .._geometry import Radar, Viewpoints, antennas_at
 from .._models import MODELS, Field, HashGrid, RiftN, RiftS
 from .._scenes import Scene
 from .._solvers import History, Outcome, Recipe, Stop
@@ -97,12 +97,17 @@ def _radar_record(radar: Radar) -> dict:
     return dataclasses.asdict(radar)
 
 
+# Radar fields added after the format's first version: files written before hold the
+# paper's L (their defaults)
+_LATER_RADAR_FIELDS = ("spreading", "tx_offsets", "rx_offsets", "frequency_list")
+
+
 def _radar(record: dict, path: str) -> Radar:
     fields = [f.name for f in dataclasses.fields(Radar)]
-    missing = [name for name in fields if name not in record]
+    missing = [n for n in fields if n not in record and n not in _LATER_RADAR_FIELDS]
     if missing:
         raise ValueError(f"load: the radar in `path` {path!r} lacks {missing}.")
-    return Radar(**{name: record[name] for name in fields})
+    return Radar(**{name: record[name] for name in fields if name in record})
 
 
 def _grid_record(scene: Scene) -> dict:
@@ -123,6 +128,11 @@ def _geometry_arrays(radar: Radar, viewpoints: Viewpoints, antennas: bool) -> di
         "viewpoints/polar": np.asarray(viewpoints.polar),
         "radar/frequencies": radar.frequencies,
     }
+    if viewpoints.positions is not None:  # poses given, not derived from the angles
+        arrays |= {
+            "viewpoints/positions": np.asarray(viewpoints.positions),
+            "viewpoints/orientations": np.asarray(viewpoints.orientations),
+        }
     if antennas:
         tx, rx = every_view_antennas(radar, viewpoints)
         arrays |= {"antennas/tx": tx, "antennas/rx": rx}
@@ -131,15 +141,15 @@ def _geometry_arrays(radar: Radar, viewpoints: Viewpoints, antennas: bool) -> di
 
 def every_view_antennas(radar: Radar, viewpoints: Viewpoints) -> tuple[np.ndarray, np.ndarray]:
     """Every view's TX and RX positions, (n_views, n_tx | n_rx, 3) metres."""
-    pairs = [
-        antenna_positions(radar, a, p)
-        for a, p in zip(viewpoints.azimuth, viewpoints.polar, strict=True)
-    ]
+    pairs = [antennas_at(radar, *pose) for pose in zip(*viewpoints.poses(radar), strict=True)]
     return np.stack([tx for tx, _ in pairs]), np.stack([rx for _, rx in pairs])
 
 
 def _viewpoints(take: _Arrays, path: str) -> Viewpoints:
-    return Viewpoints(take["viewpoints/azimuth"], take["viewpoints/polar"])
+    angles = take["viewpoints/azimuth"], take["viewpoints/polar"]
+    if "viewpoints/positions" not in take.arrays:
+        return Viewpoints(*angles)
+    return Viewpoints(*angles, take["viewpoints/positions"], take["viewpoints/orientations"])
 
 
 def _check_frequencies(radar: Radar, frequencies: np.ndarray, where: str) -> None:
@@ -148,7 +158,7 @@ def _check_frequencies(radar: Radar, frequencies: np.ndarray, where: str) -> Non
     ):
         raise ValueError(
             f"{where}: its `radar/frequencies` are not its radar's ({radar.n_frequencies} on "
-            f"[{radar.f_min:g}, {radar.f_max:g}] Hz, endpoints included)."
+            f"[{radar.f_min:g}, {radar.f_max:g}] Hz)."
         )
 
 

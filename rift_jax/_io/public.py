@@ -31,14 +31,17 @@ def load_rift_public(path: str | os.PathLike, *, phase_sign: int = -1) -> RadarD
     - ``viewpoint_positions``: (n_views, 3) array centres (m), the target at the origin.
     - ``tx_pos``, ``rx_pos``: (n_views, n_tx | n_rx, 3) absolute element positions (m).
 
-    rift_jax's GRT takes a `Radar` and `Viewpoints`, not raw antenna positions. So the
-    viewpoints are read from the array centres (``azimuth = atan2(y, x)``, ``polar =
-    arccos(z / r)``, all at one distance r), the spacing from the first TX element, and
-    the file's antennas must then sit where `rift_jax.antenna_positions` puts them (an L of
-    TX and RX arms starting at the array centre), to within λ_min / 1000 (a phase error
-    below 2π/1000). Data whose antennas do not, such as the authors' own simulations (a
-    cross of centred TX and RX arrays), are refused with a ValueError naming ``tx_pos`` or
-    ``rx_pos`` and saying how far off they are.
+    rift_jax's GRT takes a `Radar` (an antenna layout in the radar's frame) and
+    `Viewpoints` (its poses). When every antenna sits where `rift_jax.antenna_positions`
+    puts the paper's L (to within λ_min / 1000, a phase error below 2π/1000) on a sphere
+    of viewpoints, the file reads as the paper's `Radar` (spacing from the first TX
+    element) and `Viewpoints` by angle (``azimuth = atan2(y, x)``, ``polar = arccos(z /
+    r)``). Any other layout moved rigidly from view to view (the authors' own simulations
+    put a cross of centred TX and RX arrays in each view's look-at frame) reads as
+    `Radar.from_antennas`, its layout from the first view, and `Viewpoints.from_poses`,
+    each view's orientation the rotation that best places that layout on its antennas
+    (Kabsch). Antennas that no rotation places within the tolerance are refused with a
+    ValueError naming ``tx_pos`` or ``rx_pos`` and saying how far off they are.
 
     **Arguments:**
 
@@ -130,39 +133,12 @@ def load_rift_public(path: str | os.PathLike, *, phase_sign: int = -1) -> RadarD
     tolerance = C0 / max(f_max, f_min) / 1000  # λ_min / 1000: a phase error ≤ 2π/1000
 
     centres = np.asarray(arrays["viewpoint_positions"], np.float64)
-    distances = np.linalg.norm(centres, axis=1)
-    distance = float(np.mean(distances))
-    if np.max(np.abs(distances - distance)) > tolerance:
-        raise ValueError(
-            f"{where}: `viewpoint_positions` lie at distances {distances.min():.6g} to "
-            f"{distances.max():.6g} m from the origin; rift_jax's Radar has one `distance`."
-        )
-    azimuth = np.arctan2(centres[:, 1], centres[:, 0])
-    polar = np.arccos(np.clip(centres[:, 2] / distances, -1.0, 1.0))
     tx_pos = np.asarray(arrays["tx_pos"], np.float64)
     rx_pos = np.asarray(arrays["rx_pos"], np.float64)
-    # rift_jax's first TX element sits half a spacing from the array centre
-    spacing = 2 * float(np.linalg.norm(tx_pos[0, 0] - centres[0]))
-    try:
-        radar = Radar(n_adc, f_min, f_max, n_tx, n_rx, spacing, distance, near_field=True)
-    except ValueError as error:
-        raise ValueError(
-            f"{where}: `metadata_json` or the positions give no valid Radar: {error}"
-        ) from error
-    viewpoints = Viewpoints(azimuth, polar)
-    expected_tx, expected_rx = every_view_antennas(radar, viewpoints)
-    for key, found, expected in (("tx_pos", tx_pos, expected_tx), ("rx_pos", rx_pos, expected_rx)):
-        off = np.linalg.norm(found - expected, axis=-1)
-        if off.max() > tolerance:
-            view, element = np.unravel_index(np.argmax(off), off.shape)
-            raise ValueError(
-                f"{where}: `{key}` does not follow rift_jax's antenna layout: element "
-                f"{element} of view {view} lies {1e3 * off.max():.4g} mm from where "
-                f"rift_jax.antenna_positions puts it (tolerance {1e6 * tolerance:.3g} µm, "
-                "λ_min/1000). rift_jax's Radar is an L of TX and RX arms that start at the "
-                "array centre (paper Eqs. 9-11), and its GRT takes a Radar and Viewpoints, "
-                "not raw antenna positions: these data cannot be reconstructed here as they are."
-            )
+    frequencies = (f_min, f_max, n_adc)
+    radar, viewpoints = _paper_layout(centres, tx_pos, rx_pos, frequencies, tolerance, where)
+    if radar is None:
+        radar, viewpoints = _rigid_layout(centres, tx_pos, rx_pos, frequencies, tolerance, where)
 
     signal = np.mean(response, axis=3, dtype=np.complex128).transpose(0, 3, 1, 2)
     if phase_sign == -1:
@@ -174,6 +150,72 @@ def load_rift_public(path: str | os.PathLike, *, phase_sign: int = -1) -> RadarD
         raise ValueError(f"{where}: `response` is all zero.")
     signal = jnp.asarray((signal / peak).astype(np.complex64))
     return RadarData(signal, peak, viewpoints, radar, None)
+
+
+def _paper_layout(centres, tx_pos, rx_pos, frequencies, tolerance, where):
+    """The paper's L on the sphere (`Radar`, `Viewpoints` by angles), if every antenna
+    sits where `rift_jax.antenna_positions` puts it; (None, None) otherwise."""
+    f_min, f_max, n = frequencies
+    distances = np.linalg.norm(centres, axis=1)
+    distance = float(np.mean(distances))
+    if np.max(np.abs(distances - distance)) > tolerance:
+        return None, None
+    azimuth = np.arctan2(centres[:, 1], centres[:, 0])
+    polar = np.arccos(np.clip(centres[:, 2] / distances, -1.0, 1.0))
+    # the L's first TX element sits half a spacing from the array centre
+    spacing = 2 * float(np.linalg.norm(tx_pos[0, 0] - centres[0]))
+    try:
+        radar = Radar(n, f_min, f_max, tx_pos.shape[1], rx_pos.shape[1], spacing, distance)
+    except ValueError as error:
+        raise ValueError(
+            f"{where}: `metadata_json` or the positions give no valid Radar: {error}"
+        ) from error
+    viewpoints = Viewpoints(azimuth, polar)
+    expected_tx, expected_rx = every_view_antennas(radar, viewpoints)
+    for found, expected in ((tx_pos, expected_tx), (rx_pos, expected_rx)):
+        if np.linalg.norm(found - expected, axis=-1).max() > tolerance:
+            return None, None
+    return radar, viewpoints
+
+
+def _rigid_layout(centres, tx_pos, rx_pos, frequencies, tolerance, where):
+    """Any one array moved rigidly from view to view: its layout in the first view's frame
+    (looking at the origin, TX arm leaning to +z: `Viewpoints.from_poses`), and each view's
+    rotation by the Kabsch algorithm (the rotation that best maps that layout onto the
+    view's antennas). Refused, naming the positions, when no rotation places every antenna
+    within ``tolerance``."""
+    f_min, f_max, n = frequencies
+    antennas = np.concatenate([tx_pos, rx_pos], axis=1) - centres[:, None]
+    try:
+        first = Viewpoints.from_poses(centres[:1]).orientations[0]
+    except ValueError as error:
+        raise ValueError(f"{where}: `viewpoint_positions` give no pose: {error}") from error
+    layout = antennas[0] @ first  # coordinates in the first view's frame
+    u, _, vt = np.linalg.svd(np.einsum("ai,vaj->vij", layout, antennas))
+    handed = np.sign(np.linalg.det(vt.transpose(0, 2, 1) @ u.transpose(0, 2, 1)))
+    fix = np.ones((len(centres), 3))
+    fix[:, 2] = handed
+    rotations = (vt.transpose(0, 2, 1) * fix[:, None]) @ u.transpose(0, 2, 1)
+    placed = layout[None] @ rotations.transpose(0, 2, 1)
+    off = np.linalg.norm(placed - antennas, axis=-1)
+    if off.max() > tolerance:
+        view, element = np.unravel_index(np.argmax(off), off.shape)
+        n_tx = tx_pos.shape[1]
+        key, element = ("tx_pos", element) if element < n_tx else ("rx_pos", element - n_tx)
+        raise ValueError(
+            f"{where}: `{key}` is not one array moved from view to view: element {element} "
+            f"of view {view} lies {1e3 * off.max():.4g} mm from where view 0's layout, turned "
+            f"to fit, puts it (tolerance {1e6 * tolerance:.3g} µm, λ_min/1000). rift_jax's "
+            "Radar is one antenna layout (Radar.from_antennas) seen from many poses."
+        )
+    frequency_grid = f_min + (f_max - f_min) / max(n - 1, 1) * np.arange(n)
+    radar = Radar.from_antennas(
+        layout[: tx_pos.shape[1]],
+        layout[tx_pos.shape[1] :],
+        frequency_grid,
+        distance=float(np.min(np.linalg.norm(centres, axis=1))),
+    )
+    return radar, Viewpoints.from_poses(centres, orientations=rotations)
 
 
 def _public_metadata(raw, where: str) -> dict:
