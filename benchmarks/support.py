@@ -210,6 +210,7 @@ def sub_radar(radar: rj.Radar, stride: int, frequency_stride: int):
         spacing=stride * radar.spacing,
         distance=radar.distance,
         near_field=radar.near_field,
+        spreading=radar.spreading,
     )
     return sub, np.ix_(f, tx, rx)
 

@@ -650,6 +650,8 @@ class SharedSupports:
         ``granularity``."""
         snr_db = options.get("snr_db")
         key = (name, train.azimuth.tobytes(), train.polar.tobytes(), granularity, snr_db)
+        if train.positions is not None:  # poses: the angles alone do not tell them apart
+            key += (train.positions.tobytes(), train.orientations.tobytes())
         key += (seed if snr_db is not None else None,)  # the noise's seed, if any noise
         if key in self.estimates:
             return dataclasses.replace(self.estimates[key], reused=True)

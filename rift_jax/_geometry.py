@@ -166,6 +166,17 @@ class Radar:
             frequency_list=tuple(float(x) for x in f),
         )
 
+    def __repr__(self) -> str:
+        if self.is_paper_array:  # the dataclass's own form, without the empty layout
+            names = [f.name for f in dataclasses.fields(self)][:9]
+            return f"Radar({', '.join(f'{n}={getattr(self, n)!r}' for n in names)})"
+        f = self.frequencies
+        return (
+            f"Radar.from_antennas({self.n_tx} TX, {self.n_rx} RX, {self.n_frequencies} "
+            f"frequencies on [{f.min():g}, {f.max():g}] Hz, distance={self.distance!r}, "
+            f"near_field={self.near_field!r}, spreading={self.spreading!r})"
+        )
+
     @property
     def is_paper_array(self) -> bool:
         """Whether this is the paper's L with uniform frequencies (the layout that the fast

@@ -166,6 +166,24 @@ def amplitude_bound(separation: float, nearest: float) -> float:
     return separation**2 / (4.0 * nearest**2)
 
 
+def largest_q(points: np.ndarray, antennas) -> float:
+    """A bound on q over ``points`` (host, float64, (n, 3)) and each of ``antennas``' (tx, rx)
+    pairs of arrays: per point, from its nearest and farthest antenna of each side (as
+    `_needs_near_terms` reads each chunk), O(points · antennas) per pair of arrays."""
+    largest = 0.0
+    for tx, rx in antennas:
+        for start in range(0, len(points), 4096):
+            block = points[start : start + 4096, None]
+            r_t = np.linalg.norm(block - tx[None], axis=-1)
+            r_r = np.linalg.norm(block - rx[None], axis=-1)
+            lo_t, hi_t, lo_r, hi_r = r_t.min(1), r_t.max(1), r_r.min(1), r_r.max(1)
+            spread = np.maximum(hi_t - lo_r, hi_r - lo_t)
+            with np.errstate(divide="ignore"):
+                q = spread * spread / (4.0 * lo_t * lo_r)
+            largest = max(largest, float(np.max(q)))
+    return largest
+
+
 def spreading_terms(law: str, bound: float = 0.0) -> Spreading:
     """The kernels' amplitude for a spreading ``law``: "far-field" (none), "radar-equation"
     (1/(r_t r_r), one exact term) or "paper" (1/(r_t + r_r)², expanded to the smallest
@@ -210,12 +228,27 @@ class Amplitude(NamedTuple):
     near: Spreading = None
 
     @classmethod
-    def of(cls, law: str, bound: float = 0.0) -> Amplitude:
-        """The amplitude for ``law`` (see `spreading_terms`) where q ≤ ``bound``."""
+    def of(cls, law: str, bound: float = 0.0, largest=None) -> Amplitude:
+        """The amplitude for ``law`` (see `spreading_terms`) where q ≤ ``bound``, a cheap
+        bound (`amplitude_bound`). Where it would call for more than three terms, the
+        callable ``largest`` (if given) reads the geometry's own largest q
+        (`largest_q`: slower, and up to ~10^2 tighter for TX and RX apart), so that a
+        geometry is refused, or given many terms, on what it needs."""
         terms = spreading_terms(law)
         if law != "paper" or bound <= AMPLITUDE_TOLERANCE:
             return cls(terms)
+        if largest is not None and bound**2 > AMPLITUDE_TOLERANCE:
+            bound = min(bound, largest())
+            if bound <= AMPLITUDE_TOLERANCE:
+                return cls(terms)
         return cls(terms, spreading_terms(law, bound))
+
+    @classmethod
+    def unread(cls, law: str) -> Amplitude:
+        """The amplitude for geometry that cannot be read (traced): q ≤ `_TRACED_BOUND`
+        assumed, its terms in every chunk (no conditional, which a vmap inside the voxel
+        split cannot carry)."""
+        return cls(spreading_terms(law, _TRACED_BOUND if law == "paper" else 0.0))
 
     def everywhere(self) -> Spreading:
         """The terms used where no conditional runs: ``near`` if any, else ``terms``."""
@@ -366,12 +399,14 @@ def _stack_frequencies(coarse, fine, n: int) -> Float[Array, "f 2a k"]:
     return x.reshape((-1,) + x.shape[2:])[:n]
 
 
-def _chunked(x, chunk: int):
-    """Split the leading (voxel) axis of an array or pair into chunks of ``chunk``, zero-padding
-    the last one (padded points sit at the origin and carry ρ = 0)."""
+def _chunked(x, chunk: int, mode: str = "edge"):
+    """Split the leading (voxel) axis of an array or pair into chunks of ``chunk``, padding
+    the last one: points repeat the last point ("edge": a padded point at the origin would
+    sit on an antenna placed there, and its 1/r would put inf·0 = NaN in every sample), ρ
+    is padded with zeros ("constant"), so padded points contribute nothing."""
 
     n_chunks = -(-leading(x) // chunk)
-    x = pad_leading(x, n_chunks * chunk - leading(x), "constant")
+    x = pad_leading(x, n_chunks * chunk - leading(x), mode)
     return jax.tree.map(lambda a: a.reshape((n_chunks, chunk) + a.shape[1:]), x)
 
 
@@ -437,7 +472,7 @@ def _forward_kernel(points, tx, rx, frequencies, rho, *, plan, amplitude, chunk)
         return total + partial_sum(*xs), None
 
     zero = _zeros((plan.n, 2 * n_tx, 2 * n_rx), real_dtype, *jax.tree.leaves((tx, rx, rho)))
-    total, _ = jax.lax.scan(step, zero, (_chunked(points, chunk), _chunked(rho, chunk)))
+    total, _ = jax.lax.scan(step, zero, (_chunked(points, chunk), _chunked(rho, chunk, "constant")))
     re = total[:, :n_tx, :n_rx] - total[:, n_tx:, n_rx:]
     im = total[:, :n_tx, n_rx:] + total[:, n_tx:, :n_rx]
     return jax.lax.complex(re, im)
@@ -544,16 +579,16 @@ def _amplitude(points, tx, rx, near_field, spreading) -> Amplitude:
         return Amplitude.of("far-field")
     if spreading != "paper":
         return Amplitude.of(spreading)
-    if not is_concrete((points, tx, rx)):  # the traced bound's terms in every chunk: no
-        # conditional, which a vmap inside the voxel split cannot carry
-        return Amplitude(spreading_terms(spreading, _TRACED_BOUND))
+    if not is_concrete((points, tx, rx)):
+        return Amplitude.unread(spreading)
     p, t, r = (host_float64(x) for x in (points, tx, rx))
     separation = float(np.max(np.linalg.norm(t[:, None] - r[None], axis=-1)))
     antennas = np.concatenate([t, r])
     centroid = antennas.mean(0)
     spread = float(np.max(np.linalg.norm(antennas - centroid, axis=1)))
     nearest = float(np.min(np.linalg.norm(p - centroid, axis=1))) - spread
-    return Amplitude.of(spreading, amplitude_bound(separation, nearest))
+    bound = amplitude_bound(separation, nearest)
+    return Amplitude.of(spreading, bound, lambda: largest_q(p, [(t, r)]))
 
 
 def _prepare(points, tx, rx, frequencies, chunk_size):

@@ -65,7 +65,18 @@ class GRT(eqx.Module):
     points: Float64Pair
     chunk_size: int | None = eqx.field(static=True, default=None)
     live: Bool[Array, " n_points"] | None = None
-    amplitude: _grt.Amplitude = eqx.field(static=True, default=_grt.Amplitude())
+    amplitude: _grt.Amplitude | None = eqx.field(static=True, default=None)
+
+    def __post_init__(self):
+        if self.amplitude is None:  # built directly rather than by `grt_operator`: the
+            # spreading that this radar, these poses and points need
+            if is_concrete((self.positions, self.points)):
+                poses = (host_float64(self.positions), host_float64(self.orientations))
+                self.amplitude = _amplitude_for(self.radar, poses, host_float64(self.points))
+            elif self.radar.near_field:
+                self.amplitude = _grt.Amplitude.unread(self.radar.spreading)
+            else:
+                self.amplitude = _grt.Amplitude.of("far-field")
 
     @property
     def n_views(self) -> int:
@@ -90,8 +101,8 @@ class GRT(eqx.Module):
         is chosen again for them when they are concrete (it is kept otherwise)."""
         amplitude = self.amplitude
         if is_concrete(points):
-            positions, kept = (host_float64(x) for x in (self.positions, points))
-            amplitude = _amplitude_for(self.radar, positions, kept)
+            poses = (host_float64(self.positions), host_float64(self.orientations))
+            amplitude = _amplitude_for(self.radar, poses, host_float64(points))
         return GRT(
             self.radar, self.positions, self.orientations, points, self.chunk_size, live, amplitude
         )
@@ -331,7 +342,7 @@ def grt_operator(
     if pad_to is not None:  # on the host: an eager jnp.pad would compile for every size
         live = jnp.asarray(np.arange(pad_to) < len(points))
         points = np.pad(points, ((0, pad_to - len(points)), (0, 0)), mode="edge")
-    amplitude = _amplitude_for(radar, positions, points)
+    amplitude = _amplitude_for(radar, (positions, orientations), points)
     poses = split(positions), split(orientations)
     return GRTOperator(GRT(radar, *poses, split(points), chunk_size, live, amplitude))
 
@@ -344,13 +355,19 @@ def _reach(positions: np.ndarray, points: np.ndarray) -> tuple[float, float]:
     return reach, float(np.min(np.linalg.norm(positions, axis=1)))
 
 
-def _amplitude_for(radar: Radar, positions: np.ndarray, points: np.ndarray) -> _grt.Amplitude:
-    """The kernels' `rift_jax.grt.Amplitude` for this radar at these viewpoints' positions
-    and these points: its error bound from the antennas' largest separation and a lower
-    bound on their distance to the points."""
+def _amplitude_for(radar: Radar, poses, points: np.ndarray) -> _grt.Amplitude:
+    """The kernels' `rift_jax.grt.Amplitude` for this radar at these ``poses`` (positions
+    and orientations) and these points: its error bound from the antennas' largest
+    separation and a lower bound on their distance to the points (and, where that calls
+    for more than three terms, the points' own, `rift_jax.grt.largest_q`)."""
     if not radar.near_field:
         return _grt.Amplitude.of("far-field")
     antennas = max(float(np.max(np.linalg.norm(o, axis=1))) for o in radar.offsets)
-    reach, distance = _reach(positions, points)
-    nearest = distance - reach - antennas
-    return _grt.Amplitude.of(radar.spreading, _grt.amplitude_bound(radar.separation, nearest))
+    reach, distance = _reach(poses[0], points)
+    bound = _grt.amplitude_bound(radar.separation, distance - reach - antennas)
+
+    def largest():
+        views = (antennas_at(radar, *pose) for pose in zip(*poses, strict=True))
+        return _grt.largest_q(points, views)
+
+    return _grt.Amplitude.of(radar.spreading, bound, largest)

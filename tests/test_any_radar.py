@@ -1,8 +1,10 @@
 """Radars beyond the paper's: any antenna layout, any poses, any frequencies and the radar
 equation's spreading, each against the independent float64 loop in reference.py."""
 
+import json
 import math
 
+import h5py
 import numpy as np
 import pytest
 import reference
@@ -156,7 +158,11 @@ def test_a_radar_of_its_own_and_its_poses_survive_save_and_load(rng, tmp_path):
     track = np.array([[6.0, 0.0, 2.0], [0.0, 6.0, 2.0], [-6.0, 0.0, 2.0]])
     views = rj.Viewpoints.from_poses(track, look_at=(0.0, 0.0, 0.5))
     data = rj.RadarData(random_complex(rng, 3, 5, 5, 7), 1.0, views, radar, None)
-    back = rj.load(rj.save(tmp_path / "data.h5", data))
+    path = rj.save(tmp_path / "data.h5", data)
+    with h5py.File(path, "r") as h5:  # what a version-1 reader would take for the paper's L
+        assert json.loads(h5.attrs["rift_jax_header"])["format_version"] == 2
+        assert h5["viewpoints/positions"].attrs["units"] == "m"
+    back = rj.load(path)
     assert back.radar == radar
     np.testing.assert_array_equal(back.viewpoints.positions, views.positions)
     np.testing.assert_array_equal(back.viewpoints.orientations, views.orientations)
@@ -181,13 +187,42 @@ def test_bad_geometry_names_what_is_wrong(make, word):
         make()
 
 
+def test_tx_and_rx_metres_apart_take_as_many_terms_as_they_need(rng):
+    """TX and RX 4 m apart on a circle 10 m out around a ±3 m grid: the cheap bound says
+    q ≤ 0.5 (no expansion), the points' own q is 0.02: five terms, exact. Built directly as
+    a `GRT` rather than by `grt_operator`, it chooses the same spreading."""
+    radar = rj.Radar.from_antennas([[-2.0, 0, 0]], [[2.0, 0, 0]], BAND[:8])
+    angle = np.linspace(0, 2 * np.pi, 6, endpoint=False)
+    views = rj.Viewpoints.from_poses(
+        np.stack([10 * np.cos(angle), 10 * np.sin(angle), 0 * angle], 1)
+    )
+    points = rj.Scene.empty(3.0, 1.0).points()
+    rho = random_complex(rng, len(points))
+    operator = rj.grt_operator(radar, views, points)
+    assert len(operator.fn.amplitude.near) == 5
+    signal = operator.mv(rho)
+    assert relative_error(signal, per_view_reference(radar, views, points, rho)) < 1e-5
+    direct = rj.GRT(radar, operator.fn.positions, operator.fn.orientations, operator.fn.points)
+    assert direct.amplitude == operator.fn.amplitude
+
+
+def test_an_antenna_at_the_origin_of_its_frame_gives_finite_signals(rng):
+    """The kernel pads its last voxel chunk; padding at the origin would sit on an antenna
+    placed there (1/r = inf, times ρ = 0: NaN in every sample)."""
+    points, rho = random_points(rng, 70, 1.0) + np.float32(3.0), random_complex(rng, 70)
+    tx = rx = np.zeros((1, 3))
+    signal = grt.forward(points, rho, tx, rx, BAND)
+    assert relative_error(signal, reference.forward(points, rho, tx, rx, BAND)) < 1e-5
+
+
 def test_antennas_too_far_apart_for_the_expansion_are_refused():
-    """TX and RX 4 m apart, 2 m from the points: q ≈ 1, no expansion converges; the error
-    says what to do rather than returning an inexact GRT."""
+    """TX and RX 4 m apart, a point 0.7 m from TX and 3.7 m from RX: q ≈ 0.8, no
+    expansion converges; the error says what to do rather than returning an inexact GRT."""
     radar = rj.Radar.from_antennas([[-2.0, 0, 0]], [[2.0, 0, 0]], BAND, distance=3.0)
     views = rj.Viewpoints(np.array([0.0]), np.array([1.0]))
+    tx, _ = rj.antenna_positions(radar, 0.0, 1.0)
     with pytest.raises(ValueError, match="radar-equation"):
-        rj.grt_operator(radar, views, np.zeros((1, 3)))
+        rj.grt_operator(radar, views, np.stack([np.zeros(3), 0.8 * tx[0]]))
 
 
 def test_the_sar_track_example_reconstructs_from_its_file(tmp_path):

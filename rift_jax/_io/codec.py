@@ -47,6 +47,16 @@ def _get(content: dict, key: str, path: str) -> Any:
     return content[key]
 
 
+def needed_version(obj) -> int:
+    """The oldest format version that reads ``obj`` right: 2 for a radar of another layout
+    than the paper's L, the radar equation's spreading, or viewpoints given as poses (a
+    version-1 reader would take them for the paper's L on its sphere), else 1."""
+    radar, viewpoints = getattr(obj, "radar", None), getattr(obj, "viewpoints", None)
+    if radar is not None and (not radar.is_paper_array or radar.spreading != "paper"):
+        return 2
+    return 2 if viewpoints is not None and viewpoints.positions is not None else 1
+
+
 def encode_object(obj) -> tuple[str, dict, dict[str, np.ndarray]]:
     if isinstance(obj, RadarData):
         content = {

@@ -26,12 +26,14 @@ from .._scenes import Scene
 from .._synthesis import PointScatterers, RadarData
 from .._version import __version__
 from .atomic import write_atomic
-from .codec import decode_object, encode_object
+from .codec import decode_object, encode_object, needed_version
 
 FORMAT = "rift_jax"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 """Bump when a file of this version would be read wrongly by the code that reads it; every
-version this module reads stays readable."""
+version this module reads stays readable. Version 2 holds radars of any layout, poses or
+the radar equation's spreading, which a version-1 reader would have taken for the paper's
+L on its sphere; files without them are still written as version 1 (`needed_version`)."""
 
 UNITS = {"length": "m", "frequency": "Hz", "angle": "rad", "time": "s"}
 _HEADER = "rift_jax_header"
@@ -40,6 +42,7 @@ _SUFFIXES = {".npz": "npz", ".h5": "hdf5", ".hdf5": "hdf5"}
 _DATASET_UNITS = {
     "azimuth": "rad",
     "polar": "rad",
+    "positions": "m",
     "frequencies": "Hz",
     "tx": "m",
     "rx": "m",
@@ -73,7 +76,7 @@ def save(path: str | os.PathLike, obj: RadarData | Scene | PointScatterers | Fit
     kind, content, arrays = encode_object(obj)
     header = {
         "format": FORMAT,
-        "format_version": FORMAT_VERSION,
+        "format_version": needed_version(obj),
         "rift_jax_version": __version__,
         "kind": kind,
         "units": UNITS,

@@ -164,6 +164,8 @@ def _paper_layout(centres, tx_pos, rx_pos, frequencies, tolerance, where):
     polar = np.arccos(np.clip(centres[:, 2] / distances, -1.0, 1.0))
     # the L's first TX element sits half a spacing from the array centre
     spacing = 2 * float(np.linalg.norm(tx_pos[0, 0] - centres[0]))
+    if spacing == 0:  # an antenna at the array centre: no L
+        return None, None
     try:
         radar = Radar(n, f_min, f_max, tx_pos.shape[1], rx_pos.shape[1], spacing, distance)
     except ValueError as error:
@@ -183,11 +185,13 @@ def _rigid_layout(centres, tx_pos, rx_pos, frequencies, tolerance, where):
     (looking at the origin, TX arm leaning to +z: `Viewpoints.from_poses`), and each view's
     rotation by the Kabsch algorithm (the rotation that best maps that layout onto the
     view's antennas). Refused, naming the positions, when no rotation places every antenna
-    within ``tolerance``."""
+    within ``tolerance``. For antennas on one line (or at one point) the rotation about that
+    line is not fixed by them: the orientations are then one of many that place every
+    antenna, which is all the GRT reads."""
     f_min, f_max, n = frequencies
     antennas = np.concatenate([tx_pos, rx_pos], axis=1) - centres[:, None]
-    try:
-        first = Viewpoints.from_poses(centres[:1]).orientations[0]
+    try:  # the TX arm leaning to +z, or to +x for a first view on the z axis
+        first = Viewpoints.from_poses(centres[:1], up=_up(centres[0])).orientations[0]
     except ValueError as error:
         raise ValueError(f"{where}: `viewpoint_positions` give no pose: {error}") from error
     layout = antennas[0] @ first  # coordinates in the first view's frame
@@ -209,13 +213,26 @@ def _rigid_layout(centres, tx_pos, rx_pos, frequencies, tolerance, where):
             "Radar is one antenna layout (Radar.from_antennas) seen from many poses."
         )
     frequency_grid = f_min + (f_max - f_min) / max(n - 1, 1) * np.arange(n)
-    radar = Radar.from_antennas(
-        layout[: tx_pos.shape[1]],
-        layout[tx_pos.shape[1] :],
-        frequency_grid,
-        distance=float(np.min(np.linalg.norm(centres, axis=1))),
-    )
+    try:
+        radar = Radar.from_antennas(
+            layout[: tx_pos.shape[1]],
+            layout[tx_pos.shape[1] :],
+            frequency_grid,
+            distance=float(np.min(np.linalg.norm(centres, axis=1))),
+        )
+    except ValueError as error:
+        raise ValueError(
+            f"{where}: `metadata_json` or the positions give no valid Radar: {error}"
+        ) from error
     return radar, Viewpoints.from_poses(centres, orientations=rotations)
+
+
+def _up(centre: np.ndarray) -> tuple[float, float, float]:
+    """The world's +z, unless ``centre`` looks along it (a view on the z axis): then +x."""
+    length = float(np.linalg.norm(centre))
+    if length > 0 and abs(centre[2]) > (1 - 1e-12) * length:
+        return (1.0, 0.0, 0.0)
+    return (0.0, 0.0, 1.0)
 
 
 def _public_metadata(raw, where: str) -> dict:
