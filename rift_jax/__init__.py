@@ -1,6 +1,6 @@
 """rift_jax: learning radar scenes from radar signals (RIFT, in JAX).
 
-Data's path through the package: geometry (`Radar`, `Viewpoints`, `antenna_positions`) →
+Data's path through the package: geometry (`Radar`, `Viewpoints`, `antennas_at`) →
 scene (`Scene`, `rift_jax.scenes`) → GRT kernel (`rift_jax.grt`) → operator
 (`grt_operator`; on a support, `estimate_support`) → solvers and INRs (`rift_jax.solvers`,
 `RiftN`, `RiftS`, `Field`, `rift_jax.losses`) → `fit` → metrics (`rift_jax.metrics`). In and

@@ -49,8 +49,9 @@ class GRT(eqx.Module):
     viewpoints' poses (positions and orientations, `Viewpoints.poses`) and the points are
     array leaves held as float32 (hi, lo) pairs, so they keep float64 precision without x64
     (`rift_jax._precision`); distances and phases are computed in float64, see
-    `rift_jax.grt`. ``amplitude`` is the kernels' separable spreading factor, chosen for
-    these points and poses (`grt_operator`).
+    `rift_jax.grt`. ``amplitude`` is the kernels' separable spreading factor for these
+    points and poses: `grt_operator` chooses it, and so does the constructor when it is not
+    given.
 
     ``live`` (None: every point) marks the points that exist: the GRT is then A·diag(live),
     whose other columns are zero, so ρ there changes no signal and gets no backprojection.
@@ -356,10 +357,10 @@ def _reach(positions: np.ndarray, points: np.ndarray) -> tuple[float, float]:
 
 
 def _amplitude_for(radar: Radar, poses, points: np.ndarray) -> _grt.Amplitude:
-    """The kernels' `rift_jax.grt.Amplitude` for this radar at these ``poses`` (positions
+    """The kernels' `rift_jax._grt.Amplitude` for this radar at these ``poses`` (positions
     and orientations) and these points: its error bound from the antennas' largest
     separation and a lower bound on their distance to the points (and, where that calls
-    for more than three terms, the points' own, `rift_jax.grt.largest_q`)."""
+    for more than three terms, the points' own, `rift_jax._grt.largest_q`)."""
     if not radar.near_field:
         return _grt.Amplitude.of("far-field")
     antennas = max(float(np.max(np.linalg.norm(o, axis=1))) for o in radar.offsets)

@@ -1,6 +1,8 @@
 """Stress tests at quick sizes: the data's scale and noise must not change what a
 reconstruction is, or make it non-finite."""
 
+import warnings
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -145,12 +147,13 @@ def test_gain_drift_is_detected_and_a_lasting_collapse_warns(tiny):
         return jnp.mean(jnp.abs(pred) ** 2) / jnp.mean(jnp.abs(target) ** 2)
 
     options = TINY | dict(epochs=60, batch_views=None, halve_every=None, learning_rate=0.3)
-    with (
-        pytest.warns(rj.FitWarning, match="no better than the zero image"),  # it predicts ~0
-        pytest.warns(rj.solvers.CollapseWarning, match="gain drifted to zero"),
-    ):
+    with pytest.warns(rj.solvers.CollapseWarning, match="gain drifted to zero"):
+        # it predicts ~0: a residual within rounding of the zero image's 1, on either side
+        # (0.9996 and 1.0073 on two builds), so `fit`'s warning for ≥ 1 may or may not come
+        warnings.filterwarnings("ignore", "fit .*no better than the zero image", rj.FitWarning)
         result = rj.fit(scene, train, loss=shrink, retries=0, **options)
     assert result.stats["collapse"].startswith("gain drifted") and result.stats["attempts"] == 1
+    assert abs(result.residual - 1) < 0.02
 
 
 def test_a_flat_loss_is_retried_then_the_best_attempt_returned(tiny, caplog):
