@@ -196,6 +196,8 @@ def sub_radar(radar: rj.Radar, stride: int, frequency_stride: int):
     frequency. Element m sits at s·(m + 1/2), so with an odd stride the kept ones,
     m = (stride − 1)/2 + stride·i, are where a Radar of spacing stride·s puts its own; the
     frequency stride must divide n_frequencies − 1 (both ends kept)."""
+    if not radar.is_paper_array:
+        raise ValueError("sub-radars are the paper's L's: `radar` must be Radar(...)")
     if stride % 2 == 0 or (radar.n_frequencies - 1) % frequency_stride:
         raise ValueError(f"no exact sub-radar for strides {stride}, {frequency_stride}")
     tx = np.arange((stride - 1) // 2, radar.n_tx, stride)

@@ -71,11 +71,13 @@ class GRT(eqx.Module):
     def __post_init__(self):
         if self.amplitude is None:  # built directly rather than by `grt_operator`: the
             # spreading that this radar, these poses and points need
-            if is_concrete((self.positions, self.points)):
+            if is_concrete((self.positions, self.orientations, self.points)):
                 poses = (host_float64(self.positions), host_float64(self.orientations))
                 self.amplitude = _amplitude_for(self.radar, poses, host_float64(self.points))
-            elif self.radar.near_field:
+            elif self.radar.near_field and self.radar.separation > 0:
                 self.amplitude = _grt.Amplitude.unread(self.radar.spreading)
+            elif self.radar.near_field:  # TX and RX at one point: r_t = r_r, q = 0
+                self.amplitude = _grt.Amplitude.of(self.radar.spreading)
             else:
                 self.amplitude = _grt.Amplitude.of("far-field")
 
@@ -98,12 +100,22 @@ class GRT(eqx.Module):
 
     def on(self, points: Float64Pair, live: Bool[Array, " k"] | None = None) -> GRT:
         """The same radar and viewpoints on other ``points`` (a float32 pair, see
-        `rift_jax._precision.split`), of which ``live`` exist (None: all). The amplitude
-        is chosen again for them when they are concrete (it is kept otherwise)."""
+        `rift_jax._precision.split`), of which ``live`` exist (None: all).
+
+        The amplitude is kept when the new points reach no farther from the centre than
+        these (supports, active sets, finer grids of the same box): its bound, from that
+        reach, holds for them too, and the programs compiled for one size serve every
+        point set padded to it. It is chosen again for points reaching farther, and for
+        amplitudes of more than three terms (read from these points' own q), when the
+        points are concrete."""
         amplitude = self.amplitude
-        if is_concrete(points):
-            poses = (host_float64(self.positions), host_float64(self.orientations))
-            amplitude = _amplitude_for(self.radar, poses, host_float64(points))
+        near = amplitude.near
+        if is_concrete((points, self.points)):
+            new, old = host_float64(points), host_float64(self.points)
+            farther = np.max(np.linalg.norm(new, axis=1)) > np.max(np.linalg.norm(old, axis=1))
+            if farther or (near is not None and len(near) > 3):
+                poses = (host_float64(self.positions), host_float64(self.orientations))
+                amplitude = _amplitude_for(self.radar, poses, new)
         return GRT(
             self.radar, self.positions, self.orientations, points, self.chunk_size, live, amplitude
         )

@@ -12,6 +12,7 @@ from conftest import random_complex, random_points, relative_error
 
 import rift_jax as rj
 from rift_jax import _grt, grt
+from rift_jax._precision import split
 
 BAND = np.linspace(95e9, 105e9, 16)
 
@@ -109,6 +110,12 @@ def test_chunks_near_the_antennas_take_more_terms_and_stay_exact(rng):
     back = np.asarray(operator.fn.adjoint(y))
     lhs, rhs = np.vdot(signal, y), np.vdot(rho, back)
     assert abs(lhs - rhs) / abs(lhs) < 1e-5
+    # a support of these points keeps the amplitude (and so the programs compiled for its
+    # padded size, whichever points it holds); points reaching nearer the array do not
+    assert operator.fn.on(split(points[::3])).amplitude is amplitude
+    far = rj.grt_operator(rj.Radar(n_frequencies=16), views, points).fn  # 10 m away
+    assert far.amplitude.near is None
+    assert far.on(split(points * 4.5)).amplitude.near is not None
 
 
 def test_the_radar_equation_spreading_is_exact(rng):

@@ -436,6 +436,8 @@ def test_a_monostatic_track_in_the_authors_layout_reads_back(tmp_path):
     assert read.radar.n_tx == read.radar.n_rx == 1
     np.testing.assert_allclose(read.radar.frequencies, radar.frequencies, rtol=1e-14)
     np.testing.assert_allclose(read.viewpoints.positions, track, atol=1e-12)
+    looking = -track / np.linalg.norm(track, axis=1, keepdims=True)  # at the scene's centre
+    np.testing.assert_allclose(read.viewpoints.orientations[:, :, 2], looking, atol=1e-12)
     np.testing.assert_allclose(read.signal, data.signal, rtol=0, atol=2e-7)
     again = rj.synthesize(truth, read.viewpoints, read.radar).signal
     np.testing.assert_allclose(again, data.signal, rtol=0, atol=1e-6)

@@ -149,8 +149,9 @@ def test_gain_drift_is_detected_and_a_lasting_collapse_warns(tiny):
     options = TINY | dict(epochs=60, batch_views=None, halve_every=None, learning_rate=0.3)
     with pytest.warns(rj.solvers.CollapseWarning, match="gain drifted to zero"):
         # it predicts ~0: a residual within rounding of the zero image's 1, on either side
-        # (0.9996 and 1.0073 on two builds), so `fit`'s warning for ≥ 1 may or may not come
-        warnings.filterwarnings("ignore", "fit .*no better than the zero image", rj.FitWarning)
+        # (0.9996 and 1.0073 on two builds), so `fit`'s warning for ≥ 1 may or may not come,
+        warnings.filterwarnings("ignore", category=rj.FitWarning)  # and, below 1, its
+        # coherence check may or may not find the field unlike the data's backprojection
         result = rj.fit(scene, train, loss=shrink, retries=0, **options)
     assert result.stats["collapse"].startswith("gain drifted") and result.stats["attempts"] == 1
     assert abs(result.residual - 1) < 0.02

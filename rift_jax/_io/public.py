@@ -200,6 +200,11 @@ def _rigid_layout(centres, tx_pos, rx_pos, frequencies, tolerance, where):
     fix = np.ones((len(centres), 3))
     fix[:, 2] = handed
     rotations = (vt.transpose(0, 2, 1) * fix[:, None]) @ u.transpose(0, 2, 1)
+    if not np.any(layout):  # every antenna at the array's centre: nothing to turn, and the
+        # SVD's rotation of nothing would not look at the scene: the look-at poses instead
+        rotations = np.stack(
+            [Viewpoints.from_poses(c[None], up=_up(c)).orientations[0] for c in centres]
+        )
     placed = layout[None] @ rotations.transpose(0, 2, 1)
     off = np.linalg.norm(placed - antennas, axis=-1)
     if off.max() > tolerance:
