@@ -166,21 +166,27 @@ def amplitude_bound(separation: float, nearest: float) -> float:
     return separation**2 / (4.0 * nearest**2)
 
 
+def _q_bound(r_t, r_r, xp):
+    """The largest q = (r_t - r_r)²/(4 r_t r_r) over all antenna pairs, bounded from the
+    distances (antennas, points) of each side to the points: per point, from its nearest
+    and farthest antenna of each side. NumPy (host) or jax.numpy as ``xp``."""
+    lo_t, hi_t, lo_r, hi_r = r_t.min(0), r_t.max(0), r_r.min(0), r_r.max(0)
+    spread = xp.maximum(hi_t - lo_r, hi_r - lo_t)
+    return xp.max(spread * spread / (4.0 * lo_t * lo_r))
+
+
 def largest_q(points: np.ndarray, antennas) -> float:
-    """A bound on q over ``points`` (host, float64, (n, 3)) and each of ``antennas``' (tx, rx)
-    pairs of arrays: per point, from its nearest and farthest antenna of each side (as
-    `_needs_near_terms` reads each chunk), O(points · antennas) per pair of arrays."""
+    """`_q_bound` over ``points`` (host, float64, (n, 3)) and each of ``antennas``' (tx, rx)
+    pairs of arrays, as `_needs_near_terms` reads each chunk: O(points · antennas) per pair
+    of arrays."""
     largest = 0.0
     for tx, rx in antennas:
         for start in range(0, len(points), 4096):
-            block = points[start : start + 4096, None]
-            r_t = np.linalg.norm(block - tx[None], axis=-1)
-            r_r = np.linalg.norm(block - rx[None], axis=-1)
-            lo_t, hi_t, lo_r, hi_r = r_t.min(1), r_t.max(1), r_r.min(1), r_r.max(1)
-            spread = np.maximum(hi_t - lo_r, hi_r - lo_t)
-            with np.errstate(divide="ignore"):
-                q = spread * spread / (4.0 * lo_t * lo_r)
-            largest = max(largest, float(np.max(q)))
+            block = points[None, start : start + 4096]
+            r_t = np.linalg.norm(block - tx[:, None], axis=-1)
+            r_r = np.linalg.norm(block - rx[:, None], axis=-1)
+            with np.errstate(divide="ignore"):  # a point on an antenna: q = inf, refused
+                largest = max(largest, float(_q_bound(r_t, r_r, np)))
     return largest
 
 
@@ -264,10 +270,8 @@ def _needs_near_terms(points, tx, rx) -> Array:
     the paper's array: 7-10 % of the chunks of a ±5 m scene took three terms, against none
     here, measured.)"""
     with jax.enable_x64(True):
-        r_t, r_r = _distances(points, tx), _distances(points, rx)
-        lo_t, hi_t, lo_r, hi_r = r_t.min(0), r_t.max(0), r_r.min(0), r_r.max(0)
-        spread = jnp.maximum(hi_t - lo_r, hi_r - lo_t)
-        return jnp.max(spread * spread / (4.0 * lo_t * lo_r)) > AMPLITUDE_TOLERANCE
+        q = _q_bound(_distances(points, tx), _distances(points, rx), jnp)
+        return q > AMPLITUDE_TOLERANCE
 
 
 def _by_chunk(amplitude: Amplitude, work, points, tx, rx, *operands):

@@ -314,13 +314,14 @@ def screened(signal, viewpoints, points, radar, fraction: float, where=None) -> 
     paper's L with uniform frequencies, `Radar.is_paper_array`)."""
     if where is not None and not np.any(where):
         raise ValueError("screened: `where` marks no point to screen.")
+    every = np.arange(len(points)) if where is None else np.flatnonzero(where)
     if not radar.is_paper_array:
-        return np.arange(len(points)) if where is None else np.flatnonzero(where)
+        return every
     fast = np.abs(np.asarray(fast_backprojection(signal, viewpoints, points, radar)))
     if where is not None:
         fast = np.where(where, fast, 0)
     if not (np.all(np.isfinite(fast)) and fast.max() > 0):
-        return np.arange(len(points)) if where is None else np.flatnonzero(where)
+        return every
     candidates = np.flatnonzero(fast >= fraction * fast.max())
     return candidates[np.argsort(fast[candidates], kind="stable")[::-1]]
 
