@@ -35,6 +35,20 @@ from ._validation import (
 )
 
 
+# Views per block of a top-level forward call (`GRT.__call__`), before rounding up to a
+# multiple of the device count. Each view count compiled its own forward program (~1.5 s on
+# a 2-core CPU; the test suite's top-level forwards had 114 shapes, 60 once their view
+# counts were set aside), while padding a call to a whole block costs at most 7 views' work.
+VIEW_BLOCK = 8
+
+
+def views_per_block() -> int:
+    """`VIEW_BLOCK` rounded up to a multiple of the device count (each device then gets
+    whole views)."""
+    devices = jax.device_count()
+    return -(-VIEW_BLOCK // devices) * devices
+
+
 def _views_per_batch() -> int:
     """Viewpoints vmapped together on one device: one on CPU (each view already fills a core's
     caches), several on accelerators (which need the parallelism)."""
@@ -153,12 +167,43 @@ class GRT(eqx.Module):
         signal = jnp.asarray(signal, jnp.complex64)
         return self.masked(_row(self, _grt.adjoint_view, signal, self._index(index)))
 
-    @eqx.filter_jit
     def __call__(self, rho: Complex[Array, " n_points"]) -> Complex[Array, "v f m n"]:
-        """All viewpoints' signals, (n_views, n_freq, n_tx, n_rx)."""
+        """All viewpoints' signals, (n_views, n_freq, n_tx, n_rx).
+
+        Called on concrete values, the views run in blocks of `views_per_block` (the last
+        one padded with repeats of its last view, whose signals are dropped), so that every
+        such call on these points compiles one program whatever its number of views: a
+        synthesis, a fit's residual, `FitResult.predict` on the test views. Inside a trace
+        (a solver's iteration) all views run in one program."""
         rho = jnp.asarray(rho, jnp.complex64)
         if rho.shape != (self.n_points,):
             raise ValueError(f"GRT: `rho` must have shape ({self.n_points},), got {rho.shape}.")
+        if not is_concrete((self.positions, self.orientations, rho)):
+            return self._signals(rho)
+        blocks = [block._signals(rho) for block in self._blocks()]
+        out = blocks[0] if len(blocks) == 1 else jnp.concatenate(blocks)
+        return out if leading(out) == self.n_views else out[: self.n_views]
+
+    def _blocks(self) -> list[GRT]:
+        """This GRT as consecutive blocks of `views_per_block` viewpoints, the last one
+        padded with repeats of the last viewpoint (cut on the host: an eager slice of a
+        device array compiles once per offset)."""
+        size = views_per_block()
+        poses = jax.tree.map(np.asarray, (self.positions, self.orientations))
+        pad = -self.n_views % size
+        poses = jax.tree.map(lambda a: np.concatenate([a, np.repeat(a[-1:], pad, 0)]), poses)
+        return [
+            eqx.tree_at(
+                lambda g: (g.positions, g.orientations),
+                self,
+                jax.tree.map(lambda a, i=start: jnp.asarray(a[i : i + size]), poses),
+            )
+            for start in range(0, self.n_views + pad, size)
+        ]
+
+    @eqx.filter_jit
+    def _signals(self, rho: Complex[Array, " n_points"]) -> Complex[Array, "v f m n"]:
+        """`__call__` for every view in one program (ρ checked by the caller)."""
         rho = self.masked(rho)
 
         def local(positions, orientations, rho):

@@ -87,6 +87,26 @@ def test_vmap_over_reflectivities_and_views(problem):
     assert relative_error(views, single[jnp.array([2, 5])]) < 1e-6
 
 
+def test_plain_calls_run_in_view_blocks_sharing_one_program(problem, caplog):
+    """A call on concrete values runs its views in blocks of `views_per_block`, the last
+    one padded: the same signals as all views in one program, bit for bit (each view runs
+    whole on one device either way), and a new view count on the same points compiles no
+    forward of its own."""
+    from conftest import compilations
+
+    from rift_jax._operator import views_per_block
+
+    _, _, points, op, rng = problem
+    rho = jnp.asarray(random_complex(rng, len(points)))
+    size = views_per_block()
+    assert size % jax.device_count() == 0 and op.fn.n_views % size  # a padded last block
+    assert len(op.fn._blocks()) == -(-op.fn.n_views // size)
+    np.testing.assert_array_equal(op.fn(rho), op.fn._signals(rho))
+    fewer = op.fn.subset(np.arange(5))  # another count, once the program exists
+    assert not [m for m in compilations(caplog, lambda: fewer(rho)) if "_signals" in m]
+    np.testing.assert_array_equal(fewer(rho), op.fn(rho)[:5])
+
+
 def test_operator_rejects_bad_input(problem):
     radar, viewpoints, points, op, _ = problem
     with pytest.raises(ValueError, match="grid_points"):
