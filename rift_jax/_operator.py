@@ -39,6 +39,7 @@ from ._validation import (
 # multiple of the device count. Each view count compiled its own forward program (~1.5 s on
 # a 2-core CPU; the test suite's top-level forwards had 114 shapes, 60 once their view
 # counts were set aside), while padding a call to a whole block costs at most 7 views' work.
+# (Fewer views than a block: see `GRT._blocks`.)
 VIEW_BLOCK = 8
 
 
@@ -171,10 +172,11 @@ class GRT(eqx.Module):
         """All viewpoints' signals, (n_views, n_freq, n_tx, n_rx).
 
         Called on concrete values, the views run in blocks of `views_per_block` (the last
-        one padded with repeats of its last view, whose signals are dropped), so that every
-        such call on these points compiles one program whatever its number of views: a
-        synthesis, a fit's residual, `FitResult.predict` on the test views. Inside a trace
-        (a solver's iteration) all views run in one program."""
+        one padded with repeats of its last view, whose signals are dropped; fewer views, a
+        power of two), so that such calls on these points share one compiled program
+        whatever their number of views: a synthesis, a fit's residual, `FitResult.predict`
+        on the test views. Inside a trace (a solver's iteration) all views run in one
+        program."""
         rho = jnp.asarray(rho, jnp.complex64)
         if rho.shape != (self.n_points,):
             raise ValueError(f"GRT: `rho` must have shape ({self.n_points},), got {rho.shape}.")
@@ -187,8 +189,12 @@ class GRT(eqx.Module):
     def _blocks(self) -> list[GRT]:
         """This GRT as consecutive blocks of `views_per_block` viewpoints, the last one
         padded with repeats of the last viewpoint (cut on the host: an eager slice of a
-        device array compiles once per offset)."""
+        device array compiles once per offset). Fewer views make one block of the next
+        power of two: at most twice their work, where a whole block could be 8x (a single
+        view still splits its voxels over the devices)."""
         size = views_per_block()
+        if self.n_views < size:
+            size = 1 << (self.n_views - 1).bit_length()
         poses = jax.tree.map(np.asarray, (self.positions, self.orientations))
         pad = -self.n_views % size
         poses = jax.tree.map(lambda a: np.concatenate([a, np.repeat(a[-1:], pad, 0)]), poses)
