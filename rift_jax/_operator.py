@@ -10,7 +10,8 @@ Viewpoints are independent, so they are spread over the available devices (with
 `rift_jax/__init__.py`) and mapped sequentially (CPU) or in vmapped batches (GPU) on each.
 A single view (`view`, `view_adjoint`), or fewer views than devices, splits its voxels over
 the devices instead (`rift_jax._sharding`). The products are jitted, so plain calls compile
-once per shape.
+once per shape; plain forward calls run in blocks of views (`views_per_block`), so that they
+compile once per set of points, whatever their number of views.
 """
 
 from __future__ import annotations
@@ -33,7 +34,6 @@ from ._validation import (
     check_positive_int,
     is_concrete,
 )
-
 
 # Views per block of a top-level forward call (`GRT.__call__`), before rounding up to a
 # multiple of the device count. Each view count compiled its own forward program (~1.5 s on

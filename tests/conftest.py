@@ -4,7 +4,7 @@ The suite's time is mostly XLA compiling: at e79f5e7, JAX traced, lowered and co
 ~1,180 of the ~1,610 s that the tests took one after another (2,051 programs; a RIFT step
 ~4 s each, an LSMR segment ~4 s, the operator ~1.3 s). Every new shape, radar, model size
 or schedule compiles its programs again, so a new test costs least on the problems already
-here: `small_cube` and `tiny` (test_inr.py), with the budgets their tests use.
+here: `small_cube` and `tiny` (below), with the budgets their tests use.
 `tests/compile_profile.py` shows where the time goes, test by test.
 """
 
@@ -116,6 +116,16 @@ def small_cube():
     scene = rj.scenes.cube(0.5, extent=2.0, edge=1.0)
     train, test = rj.Viewpoints.grid(8, 6, polar_range=(0.2, 1.4)).split(30, 6)
     return radar, scene, train, test
+
+
+@pytest.fixture(scope="module")
+def tiny(small_cube):
+    """(radar, scene, train, test): a 1 m cube on its own 0.5 m grid over ±1 m (the data
+    are explainable exactly), seen by `small_cube`'s radar and viewpoints. Its 125 points
+    are as many as `small_cube`'s inverse grid holds, so that fits of both share compiled
+    programs."""
+    radar, _, train, test = small_cube
+    return radar, rj.scenes.cube(0.5, extent=1.0, edge=1.0), train, test
 
 
 def docs_blocks(page: str) -> list[str]:

@@ -206,16 +206,14 @@ def test_warns_when_the_inverse_grid_does_not_nest():
     "method, options",
     [("kaczmarz", {"iterations": 4}), ("fista", {"iterations": 4}), ("rift-n", {"epochs": 4})],
 )
-def test_monitor_sees_each_iteration_and_changes_nothing(method, options):
+def test_monitor_sees_each_iteration_and_changes_nothing(tiny, method, options):
     """`monitor` is called once per iteration with the best reconstruction so far as a
     Scene on the inverse grid (for least squares the last one is the result), its time is
     left out of the run's clock, and the result is bit-identical to a run without it."""
     import time
 
-    radar = rj.Radar(n_frequencies=8, n_tx=4, n_rx=4)
-    scene = rj.scenes.cube(0.5, extent=1.0, edge=1.0)
-    train = rj.Viewpoints.grid(4, 4, polar_range=(0.3, 1.3))
-    common = dict(radar=radar, method=method, granularity=1.0, progress=False, **options)
+    radar, scene, train, _ = tiny
+    common = dict(radar=radar, method=method, granularity=0.5, progress=False, **options)
     seen = []
 
     def monitor(iteration, seconds, current):
@@ -249,15 +247,13 @@ def test_monitor_sees_each_iteration_and_changes_nothing(method, options):
         ("rift-n", {"epochs": 6}),
     ],
 )
-def test_a_monitor_or_time_limit_ends_the_run_with_the_best_so_far(method, options):
+def test_a_monitor_or_time_limit_ends_the_run_with_the_best_so_far(tiny, method, options):
     """A monitor that returns True ends the run after that iteration (`Outcome.STOPPED`),
     and the result is what its `current()` showed: the run up to there, unchanged.
     `time_limit` ends it after the iteration in which fit's clock passes the limit, and a
     limit never reached changes nothing."""
-    radar = rj.Radar(n_frequencies=8, n_tx=4, n_rx=4)
-    scene = rj.scenes.cube(0.5, extent=1.0, edge=1.0)
-    train = rj.Viewpoints.grid(4, 4, polar_range=(0.3, 1.3))
-    common = dict(radar=radar, method=method, granularity=1.0, progress=False, **options)
+    radar, scene, train, _ = tiny
+    common = dict(radar=radar, method=method, granularity=0.5, progress=False, **options)
     seen = []
 
     def stop_at_three(iteration, seconds, current):

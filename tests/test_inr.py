@@ -20,15 +20,6 @@ from rift_jax._support import mask_at
 pytestmark = pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")
 
 
-@pytest.fixture(scope="module")
-def tiny():
-    """A 5³ cube scene reconstructed on its own grid (the data are explainable exactly)."""
-    radar = rj.Radar(n_frequencies=12, n_tx=4, n_rx=5)
-    scene = rj.scenes.cube(0.5, extent=1.0, edge=1.0)
-    train, test = rj.Viewpoints.grid(5, 4, polar_range=(0.3, 1.3)).split(16, 4)
-    return radar, scene, train, test
-
-
 # -- models -------------------------------------------------------------------------------
 
 
@@ -259,7 +250,7 @@ def test_rift_s_end_to_end_and_seeded(tiny):
     assert not np.allclose(first.scene.reflectivity, other.scene.reflectivity)
     assert first.scene.shape == (3, 3, 3) and first.field is not None
     prediction = first.predict(test)
-    assert prediction.signal.shape == (len(test), 12, 4, 5)
+    assert prediction.signal.shape == (len(test), *radar.signal_shape)
     assert all(np.isfinite(v) for v in first.evaluate(scene, test).values())
     # resume: a run started from the first one's field (and barely moved) keeps its scene
     resumed = rj.fit(scene, train, seed=1, init=first.field, learning_rate=1e-9, **options)
@@ -349,7 +340,7 @@ def test_bad_input(tiny):
     with pytest.raises(ValueError, match="viewpoints"):
         rj.fit(
             signal[:-1], train, method="rift-n", extent=1.0, granularity=0.5, **fit
-        )  # 15 signals for 16 viewpoints
+        )  # one signal short of the viewpoints
     with pytest.raises(ValueError, match="viewpoints"):
         rj.fit(
             rj.synthesize(scene, train[:4], radar),

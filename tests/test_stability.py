@@ -10,15 +10,12 @@ from conftest import compilations
 
 import rift_jax as rj
 
-RADAR = rj.Radar(n_frequencies=16, n_tx=4, n_rx=4)
-
 
 @pytest.fixture(scope="module")
-def problem():
-    """A cube on nested 0.3 / 0.6 m grids over ±1.5 m, 30 training and 10 test views."""
-    scene = rj.scenes.cube(0.3, extent=1.5, edge=1.2)
-    test, train = rj.Viewpoints.grid().split(10, 30, seed=0)
-    return scene, train, test
+def problem(small_cube):
+    """The suite's `small_cube` (its radar, scene, and 30 training and 6 test views), whose
+    programs other files compile too."""
+    return small_cube
 
 
 def scaled(scene: rj.Scene, factor: float) -> rj.Scene:
@@ -42,8 +39,8 @@ def scaled(scene: rj.Scene, factor: float) -> rj.Scene:
 def test_signal_scale_changes_nothing(problem, method, options, factors, tolerance):
     """A scene scaled by 1e-6 or 1e6 gives the same reconstruction, scaled: `fit` works on
     signals normalised to max |S| = 1 and scales the result back."""
-    scene, train, _ = problem
-    common = {"radar": RADAR, "method": method, "progress": False} | options
+    radar, scene, train, _ = problem
+    common = {"radar": radar, "method": method, "progress": False} | options
     reference = np.asarray(rj.fit(scene, train, **common).scene.reflectivity)
     for factor in factors:
         result = rj.fit(scaled(scene, factor), train, **common)
@@ -58,7 +55,7 @@ def test_signal_scale_changes_nothing(problem, method, options, factors, toleran
 def test_noise_degrades_smoothly_and_never_gives_nan(problem, method):
     """From noise-free data through 30, 20, 10 and 0 dB SNR the metrics stay finite and the
     m-SSIM falls (within a margin for run-to-run variation), never jumping up or to NaN."""
-    scene, train, test = problem
+    radar, scene, train, test = problem
     # RIFT for 30 epochs: after 10 its m-SSIM (~0.1) is training noise, so the noise-free
     # run scored 0.12 on one device and -0.004 at 30 dB (it passed on two by luck); from
     # ~30 epochs it is ~0.21-0.25 on 1 and 2 devices and falls with the SNR
@@ -66,7 +63,7 @@ def test_noise_degrades_smoothly_and_never_gives_nan(problem, method):
     ssim = []
     for snr in (None, 30.0, 20.0, 10.0, 0.0):
         result = rj.fit(
-            scene, train, radar=RADAR, method=method, snr_db=snr, progress=False, **options
+            scene, train, radar=radar, method=method, snr_db=snr, progress=False, **options
         )
         metrics = result.evaluate(scene, test)
         assert all(np.isfinite(v) for v in metrics.values()), (snr, metrics)
@@ -100,26 +97,17 @@ def test_diagnose_names_each_failure_mode():
     assert rj.solvers.diagnose(**healthy | dict(energy_ratio=np.nan)).startswith("zero field")
 
 
-TINY = dict(
-    radar=rj.Radar(n_frequencies=8, n_tx=4, n_rx=4), method="rift-n", granularity=0.5,
-    epochs=6, progress=False,
-)  # fmt: skip
+TINY = dict(method="rift-n", granularity=0.5, epochs=6, progress=False)  # on `tiny`
 
 
-@pytest.fixture(scope="module")
-def tiny():
-    scene = rj.scenes.cube(0.5, extent=1.0, edge=1.0)
-    train, _ = rj.Viewpoints.grid(5, 4, polar_range=(0.3, 1.3)).split(12, 4)
-    return scene, train
-
-
+@pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # six epochs: RIFT fits little
 def test_a_zero_field_is_retried_from_a_fresh_start(tiny, monkeypatch):
     """A first attempt stuck at a zero field (a start whose fixed gain is 1e-12) is detected
     and retried from seed + 1000 at half the learning rate: the result is exactly that
     retry's, and the remedy is recorded."""
     from rift_jax._solvers.inr import training
 
-    scene, train = tiny
+    radar, scene, train, _ = tiny
     original, calls = training.initial_field, []
 
     def first_one_dead(*args):
@@ -128,20 +116,20 @@ def test_a_zero_field_is_retried_from_a_fresh_start(tiny, monkeypatch):
         return rj.Field(field.model, field.extent, 1e-12) if len(calls) == 1 else field
 
     monkeypatch.setattr(training, "initial_field", first_one_dead)
-    result = rj.fit(scene, train, gain=False, seed=3, **TINY)
+    result = rj.fit(scene, train, gain=False, seed=3, radar=radar, **TINY)
     assert len(calls) == 2 and result.stats["attempts"] == 2 and result.stats["collapse"] is None
     (remedy,) = result.stats["remedies"]
     assert remedy["collapse"].startswith("zero field")
     assert remedy["seed"] == 1003 and remedy["learning_rate"] == pytest.approx(5e-3)
     monkeypatch.setattr(training, "initial_field", original)
-    direct = rj.fit(scene, train, gain=False, seed=1003, learning_rate=5e-3, **TINY)
+    direct = rj.fit(scene, train, gain=False, seed=1003, learning_rate=5e-3, radar=radar, **TINY)
     np.testing.assert_array_equal(result.scene.reflectivity, direct.scene.reflectivity)
 
 
 def test_gain_drift_is_detected_and_a_lasting_collapse_warns(tiny):
     """A loss that pays for predicting nothing drives the learned gain to zero under Adam;
     with no retries left the run is returned, named, and warned about."""
-    scene, train = tiny
+    radar, scene, train, _ = tiny
 
     def shrink(pred, target):
         return jnp.mean(jnp.abs(pred) ** 2) / jnp.mean(jnp.abs(target) ** 2)
@@ -152,7 +140,7 @@ def test_gain_drift_is_detected_and_a_lasting_collapse_warns(tiny):
         # (0.9996 and 1.0073 on two builds), so `fit`'s warning for ≥ 1 may or may not come,
         warnings.filterwarnings("ignore", category=rj.FitWarning)  # and, below 1, its
         # coherence check may or may not find the field unlike the data's backprojection
-        result = rj.fit(scene, train, loss=shrink, retries=0, **options)
+        result = rj.fit(scene, train, radar=radar, loss=shrink, retries=0, **options)
     assert result.stats["collapse"].startswith("gain drifted") and result.stats["attempts"] == 1
     assert abs(result.residual - 1) < 0.02
 
@@ -162,11 +150,13 @@ def test_a_flat_loss_is_retried_then_the_best_attempt_returned(tiny, caplog):
     of 1 + 2 attempts is tried, halving the rate, and the lowest-loss one is returned. The
     attempts share one compiled step (the rate is optimizer state; as a constant of the
     optimizer each attempt compiled its own)."""
-    scene, train = tiny
+    radar, scene, train, _ = tiny
     runs = []
 
     def run():
-        runs.append(rj.fit(scene, train, learning_rate=1e-12, batch_views=None, **TINY))
+        runs.append(
+            rj.fit(scene, train, learning_rate=1e-12, batch_views=None, radar=radar, **TINY)
+        )
         return runs[-1].scene.reflectivity
 
     with (
@@ -181,7 +171,7 @@ def test_a_flat_loss_is_retried_then_the_best_attempt_returned(tiny, caplog):
     assert [r["learning_rate"] for r in result.stats["remedies"]] == pytest.approx([5e-13, 2.5e-13])
     assert all(r["collapse"].startswith("loss flat") for r in result.stats["remedies"])
     with pytest.raises(ValueError, match="`retries` must be an int"):
-        rj.fit(scene, train, retries=-1, **TINY)
+        rj.fit(scene, train, retries=-1, radar=radar, **TINY)
 
 
 # -- dynamic range ------------------------------------------------------------------------
