@@ -26,7 +26,7 @@ from jaxtyping import Array, Bool, Complex, Float, Int
 from . import _grt
 from ._geometry import Radar, Viewpoints, antennas_at
 from ._precision import Float64Pair, host_float64, leading, split, to_float64
-from ._sharding import over_views
+from ._sharding import over_views, pinned, replicated
 from ._validation import (
     as_finite_array,
     check_finite,
@@ -38,16 +38,16 @@ from ._validation import (
 # Views per block of a top-level forward call (`GRT.__call__`), before rounding up to a
 # multiple of the device count. Each view count compiled its own forward program (~1.5 s on
 # a 2-core CPU; the test suite's top-level forwards had 114 shapes, 60 once their view
-# counts were set aside), while padding a call to a whole block costs at most 7 views' work.
-# (Fewer views than a block: see `GRT._blocks`.)
+# counts were set aside), while padding a call to whole blocks costs less than a block's
+# work. (Fewer views than a block: see `GRT._blocks`.)
 VIEW_BLOCK = 8
 
 
 def views_per_block() -> int:
-    """`VIEW_BLOCK` rounded up to a multiple of the device count (each device then gets
-    whole views)."""
+    """`VIEW_BLOCK`, or a vmapped batch (`_views_per_batch`) for every device if more,
+    rounded up to a multiple of the device count (each device then gets whole views)."""
     devices = jax.device_count()
-    return -(-VIEW_BLOCK // devices) * devices
+    return -(-max(VIEW_BLOCK, _views_per_batch() * devices) // devices) * devices
 
 
 def _views_per_batch() -> int:
@@ -171,40 +171,48 @@ class GRT(eqx.Module):
     def __call__(self, rho: Complex[Array, " n_points"]) -> Complex[Array, "v f m n"]:
         """All viewpoints' signals, (n_views, n_freq, n_tx, n_rx).
 
-        Called on concrete values, the views run in blocks of `views_per_block` (the last
-        one padded with repeats of its last view, whose signals are dropped; fewer views, a
-        power of two), so that such calls on these points share one compiled program
-        whatever their number of views: a synthesis, a fit's residual, `FitResult.predict`
-        on the test views. Inside a trace (a solver's iteration) all views run in one
-        program."""
+        Called on concrete values, the views run in blocks (`GRT._blocks`: `views_per_block`
+        views, the last block padded with repeats of its last view, whose signals are
+        dropped), each on inputs copied to every device: such calls on these points share a
+        compiled program whatever their number of views (a synthesis of the training views,
+        a fit's residual, `FitResult.predict` on the test views). Traced (inside a solver's
+        iteration), or with an input pinned to one device, all views run in one program."""
         rho = jnp.asarray(rho, jnp.complex64)
         if rho.shape != (self.n_points,):
             raise ValueError(f"GRT: `rho` must have shape ({self.n_points},), got {rho.shape}.")
-        if not is_concrete((self.positions, self.orientations, rho)):
+        if not is_concrete((self, rho)) or pinned((self, rho)) or self.n_views == 0:
             return self._signals(rho)
-        blocks = [block._signals(rho) for block in self._blocks()]
-        out = blocks[0] if len(blocks) == 1 else jnp.concatenate(blocks)
-        return out if leading(out) == self.n_views else out[: self.n_views]
+        whole, rho = replicated((self, rho))
+        blocks = [block._signals(rho) for block in whole._blocks()]
+        last = self.n_views - (len(blocks) - 1) * leading(blocks[0])
+        if last < leading(blocks[-1]):  # at most a block's worth of slice shapes
+            blocks[-1] = blocks[-1][:last]
+        return blocks[0] if len(blocks) == 1 else jnp.concatenate(blocks)
 
     def _blocks(self) -> list[GRT]:
         """This GRT as consecutive blocks of `views_per_block` viewpoints, the last one
-        padded with repeats of the last viewpoint (cut on the host: an eager slice of a
-        device array compiles once per offset). Fewer views make one block of the next
-        power of two: at most twice their work, where a whole block could be 8x (a single
-        view still splits its voxels over the devices)."""
+        padded with repeats of the last viewpoint, their poses copied to every device (cut
+        on the host: an eager slice of a device array compiles once per offset). Fewer
+        views make one block: of the next power of two, rounded up to a multiple of the
+        device count (less than twice their work where a whole block could be 8x), or of
+        their own number when they are fewer than the devices (each view then splits its
+        voxels over the devices)."""
+        devices, n = jax.device_count(), self.n_views
         size = views_per_block()
-        if self.n_views < size:
-            size = 1 << (self.n_views - 1).bit_length()
+        if n < devices:
+            size = n
+        elif n < size:
+            size = min(size, -(-(1 << (n - 1).bit_length()) // devices) * devices)
         poses = jax.tree.map(np.asarray, (self.positions, self.orientations))
-        pad = -self.n_views % size
+        pad = -n % size
         poses = jax.tree.map(lambda a: np.concatenate([a, np.repeat(a[-1:], pad, 0)]), poses)
         return [
             eqx.tree_at(
                 lambda g: (g.positions, g.orientations),
                 self,
-                jax.tree.map(lambda a, i=start: jnp.asarray(a[i : i + size]), poses),
+                replicated(jax.tree.map(lambda a, i=start: jnp.asarray(a[i : i + size]), poses)),
             )
-            for start in range(0, self.n_views + pad, size)
+            for start in range(0, n + pad, size)
         ]
 
     @eqx.filter_jit

@@ -89,22 +89,34 @@ def test_vmap_over_reflectivities_and_views(problem):
 
 def test_plain_calls_run_in_view_blocks_sharing_one_program(problem, caplog):
     """A call on concrete values runs its views in blocks of `views_per_block`, the last
-    one padded: the same signals as all views in one program, bit for bit (each view runs
-    whole on one device either way), and a new view count on the same points compiles no
-    forward of its own."""
+    one padded (fewer views: one smaller block): the same signals as all views in one
+    program, bit for bit where each view runs whole on one device. Another view count
+    that pads to the same blocks, and inputs copied to every device (as `fit`'s residual
+    passes them), compile no forward of their own; no view at all gives no signal."""
     from conftest import compilations
 
     from rift_jax._operator import views_per_block
+    from rift_jax._sharding import replicated
 
     _, _, points, op, rng = problem
     rho = jnp.asarray(random_complex(rng, len(points)))
     size = views_per_block()
-    assert size % jax.device_count() == 0 and op.fn.n_views % size  # a padded last block
-    assert len(op.fn._blocks()) == -(-op.fn.n_views // size)
-    np.testing.assert_array_equal(op.fn(rho), op.fn._signals(rho))
-    fewer = op.fn.subset(np.arange(5))  # another count, once the program exists
-    assert not [m for m in compilations(caplog, lambda: fewer(rho)) if "_signals" in m]
-    np.testing.assert_array_equal(fewer(rho), op.fn(rho)[:5])
+    assert size % jax.device_count() == 0
+    many = op.fn.subset(np.arange(size + 1) % op.fn.n_views)  # two blocks, one padded
+    assert len(many._blocks()) == 2
+    np.testing.assert_array_equal(many(rho), many._signals(rho))
+    for n in (1, 3):  # one view (its voxels split over the devices), and a smaller block
+        few = op.fn.subset(np.arange(n))
+        expected = few._signals(rho)
+        np.testing.assert_allclose(
+            few(rho), expected, rtol=1e-6, atol=1e-6 * np.abs(expected).max()
+        )
+    more = op.fn.subset(np.arange(size + 2) % op.fn.n_views)  # two blocks, as `many`'s
+    assert not [m for m in compilations(caplog, lambda: more(rho)) if "_signals" in m]
+    copied = replicated((more, rho))
+    assert not [m for m in compilations(caplog, lambda: copied[0](copied[1])) if "_signals" in m]
+    np.testing.assert_array_equal(more(rho)[: size + 1], many(rho))
+    assert op.fn.subset(np.array([], int))(rho).shape == (0, *op.fn.radar.signal_shape)
 
 
 def test_operator_rejects_bad_input(problem):

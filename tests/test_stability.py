@@ -18,6 +18,17 @@ def problem(small_cube):
     return small_cube
 
 
+@pytest.fixture(scope="module")
+def finer_problem():
+    """A cube on nested 0.3 / 0.6 m grids over ±1.5 m, 30 training and 10 test views, a
+    radar of 16 frequencies: RIFT's m-SSIM there is ~0.2 after 30 epochs, where on
+    `small_cube`'s 1 m grid it is 0.07 noise-free and 0.01 at 0 dB (measured), too close to
+    zero to tell a fall from chance."""
+    scene = rj.scenes.cube(0.3, extent=1.5, edge=1.2)
+    test, train = rj.Viewpoints.grid().split(10, 30, seed=0)
+    return rj.Radar(n_frequencies=16, n_tx=4, n_rx=4), scene, train, test
+
+
 def scaled(scene: rj.Scene, factor: float) -> rj.Scene:
     return rj.Scene(scene.reflectivity * factor, scene.extent, scene.granularity)
 
@@ -52,10 +63,10 @@ def test_signal_scale_changes_nothing(problem, method, options, factors, toleran
 
 @pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # tiny budgets: RIFT fits little
 @pytest.mark.parametrize("method", ["kaczmarz", "rift-n"])
-def test_noise_degrades_smoothly_and_never_gives_nan(problem, method):
+def test_noise_degrades_smoothly_and_never_gives_nan(finer_problem, method):
     """From noise-free data through 30, 20, 10 and 0 dB SNR the metrics stay finite and the
     m-SSIM falls (within a margin for run-to-run variation), never jumping up or to NaN."""
-    radar, scene, train, test = problem
+    radar, scene, train, test = finer_problem
     # RIFT for 30 epochs: after 10 its m-SSIM (~0.1) is training noise, so the noise-free
     # run scored 0.12 on one device and -0.004 at 30 dB (it passed on two by luck); from
     # ~30 epochs it is ~0.21-0.25 on 1 and 2 devices and falls with the SNR

@@ -169,8 +169,8 @@ def test_auto_support_keeps_every_true_voxel():
     with the fast backprojection (the default) gives the exact mask. Sampled only
     at the voxel centres (``oversample=1``), the same backprojection loses true voxels:
     the check can fail, and the finer sampling is what passes it. (The two exact
-    backprojections, ~10 s each, run on two of the scenes: the one keeping most points, a
-    curved one, and random boxes, where the coarse sampling loses 11 true voxels.)"""
+    backprojections, ~10 s each, run on two scenes: the sphere, curved and keeping the most
+    points, and "boxes 12", where the coarse sampling loses 11 true voxels.)"""
     radar = rj.Radar()
     train, _ = rj.Viewpoints.grid().split(60, 1, seed=0)
     grid = rj.Scene.empty(2.0, 0.4)
