@@ -12,13 +12,6 @@ import rift_jax as rj
 
 
 @pytest.fixture(scope="module")
-def problem(small_cube):
-    """The suite's `small_cube` (its radar, scene, and 30 training and 6 test views), whose
-    programs other files compile too."""
-    return small_cube
-
-
-@pytest.fixture(scope="module")
 def finer_problem():
     """A cube on nested 0.3 / 0.6 m grids over ±1.5 m, 30 training and 10 test views, a
     radar of 16 frequencies: RIFT's m-SSIM there is ~0.2 after 30 epochs, where on
@@ -47,10 +40,11 @@ def scaled(scene: rj.Scene, factor: float) -> rj.Scene:
         ("rift-n", {"epochs": 5}, (2.0**-20, 2.0**20), 1e-6),
     ],
 )
-def test_signal_scale_changes_nothing(problem, method, options, factors, tolerance):
+def test_signal_scale_changes_nothing(small_cube, method, options, factors, tolerance):
     """A scene scaled by 1e-6 or 1e6 gives the same reconstruction, scaled: `fit` works on
-    signals normalised to max |S| = 1 and scales the result back."""
-    radar, scene, train, _ = problem
+    signals normalised to max |S| = 1 and scales the result back. (On the suite's
+    `small_cube`, whose programs other files compile too.)"""
+    radar, scene, train, _ = small_cube
     common = {"radar": radar, "method": method, "progress": False} | options
     reference = np.asarray(rj.fit(scene, train, **common).scene.reflectivity)
     for factor in factors:
