@@ -71,6 +71,7 @@ class RiftN(AbstractINR):
         self.output = eqx.nn.Linear(width, 2, key=keys[-1])
         self.negative_slope = negative_slope
 
+    @exact_products  # full float32 on every backend (no TF32), called alone or in a Field
     def __call__(self, xyz: Float[Array, " 3"]) -> Float[Array, " 2"]:
         h = xyz
         for linear, norm in zip(self.hidden, self.norms, strict=True):
@@ -117,6 +118,7 @@ class RiftS(AbstractINR):
         self.output = layers[-1]
         self.omega_0 = omega_0
 
+    @exact_products  # full float32 on every backend (no TF32), called alone or in a Field
     def __call__(self, xyz: Float[Array, " 3"]) -> Float[Array, " 2"]:
         h = xyz
         for linear in self.hidden:
@@ -179,6 +181,7 @@ class HashGrid(AbstractINR):
         )
         self.output = eqx.nn.Linear(sizes[-1], 2, key=keys[-1])
 
+    @exact_products  # full float32 on every backend (no TF32), called alone or in a Field
     def __call__(self, xyz: Float[Array, " 3"]) -> Float[Array, " 2"]:
         h = self.encode(xyz)
         for linear in self.hidden:
@@ -245,7 +248,7 @@ class Field(eqx.Module):
     def gain(self) -> Complex[Array, ""]:
         return jnp.exp(jax.lax.complex(self.log_gain, self.phase))
 
-    @exact_products  # the INR's products in full float32 on every backend (no TF32)
+    @exact_products  # a user's own AbstractINR too: full float32 on every backend (no TF32)
     def __call__(self, xyz: Float[Array, " 3"]) -> Complex[Array, ""]:
         re, im = self.model(xyz / self.extent)
         return self.gain * jax.lax.complex(re, im)
