@@ -59,6 +59,25 @@ _WORKLOAD = textwrap.dedent(
 )
 
 
+def cpu_processes(devices: int) -> dict[str, str]:
+    """The environment of a subprocess on ``devices`` CPU devices, on CPU whatever the
+    machine has (on a GPU machine JAX would otherwise pick its one GPU)."""
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    return env | {"RIFT_JAX_CPU_DEVICES": str(devices), "JAX_PLATFORMS": "cpu"}
+
+
+def wait_all(runs: list[subprocess.Popen], what: str) -> None:
+    """Wait for every run, and end the rest if one fails (so none outlives its test)."""
+    try:
+        for i, run in enumerate(runs):
+            assert run.wait(timeout=600) == 0, f"{what}: process {i} failed"
+    finally:
+        for run in runs:
+            if run.poll() is None:
+                run.kill()
+                run.wait()
+
+
 @pytest.fixture(scope="module")
 def by_device_count(tmp_path_factory):
     folder = tmp_path_factory.mktemp("devices")
@@ -66,11 +85,9 @@ def by_device_count(tmp_path_factory):
     script.write_text(_WORKLOAD)
     runs = {}
     for n in (1, 4):  # side by side: most of each run is compilation on one core
-        env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-        env["RIFT_JAX_CPU_DEVICES"] = str(n)
-        runs[n] = subprocess.Popen([sys.executable, str(script), str(folder / f"{n}.npz")], env=env)
-    for n, run in runs.items():
-        assert run.wait(timeout=600) == 0, f"the workload on {n} devices failed"
+        command = [sys.executable, str(script), str(folder / f"{n}.npz")]
+        runs[n] = subprocess.Popen(command, env=cpu_processes(n))
+    wait_all(list(runs.values()), "the workload on 1 and 4 devices")
     return {n: dict(np.load(folder / f"{n}.npz")) for n in runs}
 
 
@@ -132,11 +149,9 @@ def test_the_multihost_example_matches_one_process(tmp_path):
     script = os.path.join(os.path.dirname(__file__), "..", "docs", "examples", "multihost.py")
 
     def launch(processes: int, process_id: int, port: int, out):
-        env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-        env["RIFT_JAX_CPU_DEVICES"] = "1"
         command = [sys.executable, script, "--coordinator", f"localhost:{port}"]
         command += ["--processes", str(processes), "--process-id", str(process_id)]
-        return subprocess.Popen(command + ["--out", str(out)], env=env)
+        return subprocess.Popen(command + ["--out", str(out)], env=cpu_processes(1))
 
     ports = []
     for _ in range(2):
@@ -145,8 +160,7 @@ def test_the_multihost_example_matches_one_process(tmp_path):
             ports.append(s.getsockname()[1])
     runs = [launch(2, i, ports[0], tmp_path / "two.npz") for i in (0, 1)]
     runs.append(launch(1, 0, ports[1], tmp_path / "one.npz"))
-    for run in runs:
-        assert run.wait(timeout=600) == 0
+    wait_all(runs, "the multihost example")
     one, two = np.load(tmp_path / "one.npz"), np.load(tmp_path / "two.npz")
     np.testing.assert_array_equal(two["signal"], one["signal"])
     error = np.linalg.norm(two["lsmr"] - one["lsmr"]) / np.linalg.norm(one["lsmr"])
