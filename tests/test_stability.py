@@ -58,15 +58,21 @@ def test_signal_scale_changes_nothing(small_cube, method, options, factors, tole
 @pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # tiny budgets: RIFT fits little
 @pytest.mark.parametrize("method", ["kaczmarz", "rift-n"])
 def test_noise_degrades_smoothly_and_never_gives_nan(finer_problem, method):
-    """From noise-free data through 30, 20, 10 and 0 dB SNR the metrics stay finite and the
-    m-SSIM falls (within a margin for run-to-run variation), never jumping up or to NaN."""
+    """From noise-free data through 30, 20, 10, 0 and -10 dB SNR the metrics stay finite and
+    the m-SSIM never jumps up (within a margin for run-to-run variation) or to NaN; at -10 dB
+    (noise ten times the signal's power) it has fallen.
+
+    Not at 0 dB: RIFT's m-SSIM after 30 epochs varies more between seeds than 0 dB moves it
+    (measured on this problem, seeds 0, 1, 2: 0.236, 0.209, 0.128 noise-free; 0.125, 0.183,
+    0.124 at 0 dB), and on an H100, whose rounding takes training elsewhere, seed 0 scored
+    0.222 noise-free and 0.229 at 0 dB. At -10 dB it scored -0.04, 0.15 and -0.04."""
     radar, scene, train, test = finer_problem
     # RIFT for 30 epochs: after 10 its m-SSIM (~0.1) is training noise, so the noise-free
     # run scored 0.12 on one device and -0.004 at 30 dB (it passed on two by luck); from
-    # ~30 epochs it is ~0.21-0.25 on 1 and 2 devices and falls with the SNR
+    # ~30 epochs it is ~0.13-0.25
     options = {"iterations": 3} if method == "kaczmarz" else {"epochs": 30}
     ssim = []
-    for snr in (None, 30.0, 20.0, 10.0, 0.0):
+    for snr in (None, 30.0, 20.0, 10.0, 0.0, -10.0):
         result = rj.fit(
             scene, train, radar=radar, method=method, snr_db=snr, progress=False, **options
         )
@@ -74,7 +80,7 @@ def test_noise_degrades_smoothly_and_never_gives_nan(finer_problem, method):
         assert all(np.isfinite(v) for v in metrics.values()), (snr, metrics)
         ssim.append(metrics["m_ssim"])
     assert np.all(np.diff(ssim) < 0.05), ssim
-    assert ssim[-1] < ssim[0], ssim  # 0 dB costs something
+    assert ssim[-1] < ssim[0], ssim  # -10 dB costs something
 
 
 # -- RIFT collapse: detected, remedied, recorded ------------------------------------------
