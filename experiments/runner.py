@@ -435,6 +435,7 @@ def versions() -> dict:
         "python": sys.version.split()[0],
         "platform": platform.platform(),
         "devices": [str(d) for d in jax.devices()],
+        "device_kind": jax.devices()[0].device_kind,  # an accelerator's name, e.g. "NVIDIA H100"
         "cpu_count": os.cpu_count(),
     }
 
@@ -531,6 +532,7 @@ def execute(
     else:
         results["versions"] = versions()
         results |= {"notes": dict(notes or {})}
+    results["planned_runs"] = len(runs)  # the report says when a stopped study is unfinished
     grids = {key: inverse for key in scenes} if not isinstance(inverse, Mapping) else inverse
     for key, scene in scenes.items():  # a Scene resampled, PointScatterers spread
         volumes[f"truth/{key}"] = np.asarray(scene.resample(grids[key]).reflectivity)
@@ -869,10 +871,16 @@ def figure_lines(names: tuple[str, ...], drawn: bool) -> list[str]:
 
 def environment_line(results: dict) -> str:
     v = results["versions"]
+    done, planned = len(results["rows"]), results.get("planned_runs")
+    count = f"{done} runs" if planned in (None, done) else f"{done} of {planned} runs (unfinished)"
+    devices = ", ".join(v["devices"])
+    machine = f"{v['cpu_count']} CPU cores ({devices})"
+    if not v["devices"][0].startswith("cpu"):  # an accelerator: name it
+        kind = v.get("device_kind", "accelerator")
+        machine = f"{len(v['devices'])} × {kind} ({devices}) and {v['cpu_count']} CPU cores"
     line = (
-        f"Seed {results['seed']}; {len(results['rows'])} runs in "
-        f"{results['wall_seconds'] / 60:.1f} min (fit + evaluation) on {v['cpu_count']} CPU "
-        f"cores ({', '.join(v['devices'])}); rift_jax {v['rift_jax']}, jax {v['jax']}, "
+        f"Seed {results['seed']}; {count} in {results['wall_seconds'] / 60:.1f} min "
+        f"(fit + evaluation) on {machine}; rift_jax {v['rift_jax']}, jax {v['jax']}, "
         f"Python {v['python']}."
     )
     # a resumed file's runs may come from several versions of the code: say which

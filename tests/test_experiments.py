@@ -289,6 +289,18 @@ def test_the_environment_line_names_every_commit_a_resumed_file_ran():
     results["resumed_with"] = [{"git_commit": "a" * 40}, {"git_commit": "b" * 40}]
     line = runner.environment_line(results)
     assert line.endswith(" Code at commit aaaaaaa, resumed at bbbbbbb.")
+    assert "1 runs in 1.0 min (fit + evaluation) on 2 CPU cores (cpu:0);" in line
+
+
+def test_the_environment_line_names_the_accelerator_and_an_unfinished_study():
+    """A GPU run says which GPU; a study stopped early says how many of its runs it holds."""
+    versions = {"cpu_count": 16, "devices": ["cuda:0"], "device_kind": "NVIDIA H100 80GB HBM3"}
+    versions |= {"rift_jax": "0", "jax": "0", "python": "3"}
+    results = {"seed": 0, "rows": [{}] * 8, "wall_seconds": 60.0, "versions": versions}
+    line = runner.environment_line(results | {"planned_runs": 12})
+    assert "8 of 12 runs (unfinished) in 1.0 min" in line
+    assert "on 1 × NVIDIA H100 80GB HBM3 (cuda:0) and 16 CPU cores;" in line
+    assert "8 runs in" in runner.environment_line(results | {"planned_runs": 8})
 
 
 def test_resume_reads_the_free_text_outcomes_of_older_files():
