@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import reference
-from conftest import random_complex, run_docs_block
+from conftest import compilations, random_complex, run_docs_block
 
 import rift_jax as rj
 from rift_jax._solvers._common import as_complex, as_pair, realified
@@ -420,6 +420,9 @@ def test_a_padded_active_set_trains_as_the_set_itself(small_cube):
     assert candidates.restricted(active[:40], padded).n_points == 56  # fits, 2/3 full
     assert candidates.restricted(active[:30], padded).n_points == 32  # under 2/3: shrinks
     assert candidates.restricted(np.arange(720), padded).n_points == 729  # at most all
+    # the work a smaller size would save, against a compilation's (COMPILE_WORK)
+    assert candidates.restricted(active[:30], padded, point_cost=1.0).n_points == 56  # keeps
+    assert candidates.restricted(active[:30], padded, point_cost=1e12).n_points == 32
     plain = eqx.tree_at(
         lambda p: p.points, operator.fn, jax.tree.map(lambda a: a[active], operator.fn.points)
     )
@@ -437,15 +440,25 @@ def test_a_padded_active_set_trains_as_the_set_itself(small_cube):
     assert any(np.any(np.asarray(m) != 0) for m in jax.tree.leaves(mu))
 
 
-def test_pruning_trains_the_scene_on_fewer_points(small_cube):
+def test_pruning_trains_the_scene_on_fewer_points(small_cube, caplog):
     """On exact data, the active set shrinks to the cube and its neighbours, the result is
     zero elsewhere (that is what was trained), and it scores as the unpruned run does, both
-    given every epoch (with the default `patience` the unpruned run scored 0.80)."""
+    given every epoch (with the default `patience` the unpruned run scored 0.80). On a
+    problem this small a smaller set would save less work than a compilation costs
+    (`COMPILE_WORK`), so every set keeps the candidates' size and the pruned run compiles no
+    step of its own."""
     radar, scene, train, test = small_cube
     common = dict(radar=radar, method="rift-n", granularity=0.5, epochs=160, progress=False)
     common |= dict(patience=None, support=None)
     plain = rj.fit(scene, train, prune=None, **common)
-    pruned = rj.fit(scene, train, prune=0.05, recheck_every=20, **common)  # 2 set sizes, not 4
+    pruned = None
+
+    def prune():
+        nonlocal pruned
+        pruned = rj.fit(scene, train, prune=0.05, recheck_every=20, **common)
+        return pruned.scene.reflectivity
+
+    assert not [m for m in compilations(caplog, prune) if "jit(_step)" in m]
     active = pruned.stats["active_points"]
     assert 27 < active < 300  # the 27 voxels of the cube, and some of their neighbours
     assert np.count_nonzero(np.asarray(pruned.scene.reflectivity)) <= active

@@ -2,7 +2,8 @@
 
 With a recipe's ``prune``, a step trains only the points where the field lives (|ρ| at
 least ``prune`` of its peak, and their neighbours); the set is padded to a size that
-changes rarely, since the step compiles once per size.
+changes rarely, since the step compiles once per size, and a smaller size is compiled only
+where the work it saves outweighs a compilation (`COMPILE_WORK`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,15 @@ from ..._models import Field
 from ..._operator import GRT
 from ..._padding import ladder_size
 from ..._sharding import replicated
+
+# What a RIFT step's compilation is worth in point-measurements (one point's contribution to
+# one measurement, forward and backward): a step compiles in ~4-5 s on the 2-core CPU
+# (measured), in which its forward and backward pass cover ~2.5·10⁹ point-measurements a
+# second (the GRT benchmark's forward rate, 6.5·10⁹ a second, over ~2.6 for the backward).
+# A set keeps its padded size while the padding's share of the remaining steps costs less
+# than this. A constant, not a timing, so that runs repeat exactly; on a GPU, where steps
+# are ~40× faster and compilations not, it errs towards compiling.
+COMPILE_WORK = 1e10
 
 
 class Candidates:
@@ -50,7 +60,10 @@ class Candidates:
         return chosen[self.live[chosen]]
 
     def restricted(
-        self, active: np.ndarray | None, current: StepPoints | None = None
+        self,
+        active: np.ndarray | None,
+        current: StepPoints | None = None,
+        point_cost: float | None = None,
     ) -> StepPoints:
         """The points a step trains: the active ones (all for None), replicated.
 
@@ -58,21 +71,30 @@ class Candidates:
         the number of points, and at the paper's cube each new size added 6-9 s to its
         epoch, against ~0.8 s for an epoch that compiles nothing (measured). ``current``'s
         size is kept while the set fits in it and fills at least two thirds of it (each
-        step's cost follows the padded size); otherwise the set gets the next size of a
-        ladder growing ~1.25x (`rift_jax._padding.ladder_size`). Padding repeats the first
-        active point, not live (`GRT.live`: ρ = 0 there), so it adds nothing to the signals
-        or gradients."""
+        step's cost follows the padded size), or, given ``point_cost`` (the work one point
+        adds to the rest of the training, in point-measurements), while the padding beyond
+        the set's own size costs less than a compilation (`COMPILE_WORK`): small problems
+        then compile one step. Otherwise the set gets the next size of a ladder growing
+        ~1.25x (`rift_jax._padding.ladder_size`). Padding repeats the first active point,
+        not live (`GRT.live`: ρ = 0 there), so it adds nothing to the signals or
+        gradients. Every set, all the points too, carries `live`, so that one program
+        serves them all."""
         if active is None:
-            return replicated(StepPoints(self.fn, self.coords))
+            fn = self.fn
+            if fn.live is None:
+                fn = fn.on(fn.points, jnp.asarray(self.live))
+            return replicated(StepPoints(fn, self.coords))
         n, limit = len(active), len(self.points)
+        own = min(ladder_size(n), limit)
         size = None if current is None else current.n_points
-        if size is None or not n <= size <= 1.5 * n:
-            size = min(ladder_size(n), limit)
+        fits = size is not None and n <= size
+        cheap = fits and point_cost is not None and (size - own) * point_cost <= COMPILE_WORK
+        if not (fits and (size <= 1.5 * n or cheap)):
+            size = own
         index = np.concatenate([active, np.full(size - n, active[0])])
         live = np.arange(size) < n
         points = jax.tree.map(lambda a: a[index], self.fn.points)
-        fn = self.fn.on(points, None if live.all() else jnp.asarray(live))
-        return replicated(StepPoints(fn, self.coords[index]))
+        return replicated(StepPoints(self.fn.on(points, jnp.asarray(live)), self.coords[index]))
 
 
 class StepPoints(eqx.Module):

@@ -103,6 +103,7 @@ def train(
     initial_gain = float(abs(field.gain))  # for the collapse check: has it drifted to zero?
 
     n_views = len(trained_views)
+    measurements = int(np.prod(signal.shape[1:]))  # per view: frequencies × TX × RX
     batch = n_views if recipe.batch_views is None else min(recipe.batch_views, n_views)
     steps = n_steps(n_views, batch)
     spec = jax.tree.map(eqx.is_inexact_array, field)
@@ -146,8 +147,9 @@ def train(
                 active = np.union1d(active, chosen)  # grow back where the field rose
             else:
                 chosen = None  # no change: no recompilation
-            if chosen is not None:
-                step_points = candidates.restricted(active, step_points)
+            if chosen is not None:  # each point's work in the epochs left, forward and back
+                point_cost = measurements * n_views * (recipe.epochs - k + 1)
+                step_points = candidates.restricted(active, step_points, point_cost)
         batches = trained_views[batch_order(rng, n_views, batch)]
         indices = replicated(jnp.asarray(batches))
         params, opt_state = state.params, state.opt_state
