@@ -459,6 +459,7 @@ def test_pruning_trains_the_scene_on_fewer_points(small_cube, caplog):
         return pruned.scene.reflectivity
 
     assert not [m for m in compilations(caplog, prune) if "jit(_step)" in m]
+    assert pruned.stats["step_sizes"] == plain.stats["step_sizes"] == [729]
     active = pruned.stats["active_points"]
     assert 27 < active < 300  # the 27 voxels of the cube, and some of their neighbours
     assert np.count_nonzero(np.asarray(pruned.scene.reflectivity)) <= active

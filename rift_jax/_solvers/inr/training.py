@@ -123,6 +123,7 @@ def train(
     if recipe.prune is not None and init is not None:
         active = candidates.select(field, recipe.prune)
     step_points = candidates.restricted(active)
+    step_sizes = {step_points.n_points}  # the sizes the step compiled for (a stat)
     start = _Epochs(0, params, opt_state, candidates, active, step_points, 1, switch)
 
     def one_epoch(state: _Epochs) -> tuple[_Epochs, Record]:
@@ -135,6 +136,7 @@ def train(
             candidates = Candidates(fn.on(split(fine_points)), fine_points)
             active = None if recipe.prune is None else candidates.select(current, recipe.prune)
             step_points, stage_start = candidates.restricted(active), k
+            step_sizes.add(step_points.n_points)
         elif (
             recipe.prune is not None
             and k > stage_start
@@ -147,9 +149,17 @@ def train(
                 active = np.union1d(active, chosen)  # grow back where the field rose
             else:
                 chosen = None  # no change: no recompilation
-            if chosen is not None:  # each point's work in the epochs left, forward and back
-                point_cost = measurements * n_views * (recipe.epochs - k + 1)
+            if chosen is not None:
+                # each point's work in the epochs left to these candidates (the coarse
+                # stage's end, or the run's), forward and back; patience may end it sooner
+                end = (
+                    state.switch
+                    if state.switch is not None and k < state.switch
+                    else recipe.epochs + 1
+                )
+                point_cost = measurements * n_views * (end - k)
                 step_points = candidates.restricted(active, step_points, point_cost)
+                step_sizes.add(step_points.n_points)
         batches = trained_views[batch_order(rng, n_views, batch)]
         indices = replicated(jnp.asarray(batches))
         params, opt_state = state.params, state.opt_state
@@ -216,6 +226,7 @@ def train(
             "steps_per_epoch": steps,
             "batch_views": batch,
             "active_points": int(trained.sum()),
+            "step_sizes": sorted(step_sizes),  # padded point counts trained (one program each)
             "initial_gain": initial_gain,
         }
         if len(held):
