@@ -110,8 +110,9 @@ def test_chunks_near_the_antennas_take_more_terms_and_stay_exact(rng):
     back = np.asarray(operator.fn.adjoint(y))
     lhs, rhs = np.vdot(signal, y), np.vdot(rho, back)
     assert abs(lhs - rhs) / abs(lhs) < 1e-5
-    # a support of these points keeps the amplitude (and so the programs compiled for its
-    # padded size, whichever points it holds); points reaching nearer the array do not
+    # a support of these points keeps the amplitude where its own q still needs the
+    # conditional (and so the programs compiled for its padded size); points reaching
+    # nearer the array get their own
     assert operator.fn.on(split(points[::3])).amplitude is amplitude
     far = rj.grt_operator(rj.Radar(n_frequencies=16), views, points).fn  # 10 m away
     assert far.amplitude.near is None
