@@ -66,11 +66,20 @@ def cpu_processes(devices: int) -> dict[str, str]:
     return env | {"RIFT_JAX_CPU_DEVICES": str(devices), "JAX_PLATFORMS": "cpu"}
 
 
-def wait_all(runs: list[subprocess.Popen], what: str) -> None:
-    """Wait for every run, and end the rest if one fails (so none outlives its test)."""
+def wait_all(runs: list[subprocess.Popen], what: str, timeout: float = 600) -> None:
+    """Wait for every run; fail as soon as one fails (a multihost peer whose partner died
+    would wait for it), and end the rest then, so that none outlives its test."""
+    import time
+
+    deadline = time.monotonic() + timeout
     try:
-        for i, run in enumerate(runs):
-            assert run.wait(timeout=600) == 0, f"{what}: process {i} failed"
+        while any(run.poll() is None for run in runs):
+            failed = [i for i, run in enumerate(runs) if run.poll() not in (None, 0)]
+            assert not failed, f"{what}: process {failed[0]} failed"
+            assert time.monotonic() < deadline, f"{what}: still running after {timeout} s"
+            time.sleep(0.2)
+        codes = [run.returncode for run in runs]
+        assert codes == [0] * len(runs), f"{what}: exit codes {codes}"
     finally:
         for run in runs:
             if run.poll() is None:
