@@ -869,15 +869,25 @@ def figure_lines(names: tuple[str, ...], drawn: bool) -> list[str]:
     return lines
 
 
+def _machine(v: dict) -> str:
+    """The machine a versions record was made on: its CPU cores, or its accelerator."""
+    devices = ", ".join(v["devices"])
+    if v["devices"][0].lower().startswith(("cpu", "tfrt_cpu")):
+        return f"{v['cpu_count']} CPU cores ({devices})"
+    kind = v.get("device_kind", "accelerator")  # an accelerator: name it
+    return f"{len(v['devices'])} × {kind} ({devices}) and {v['cpu_count']} CPU cores"
+
+
 def environment_line(results: dict) -> str:
     v = results["versions"]
     done, planned = len(results["rows"]), results.get("planned_runs")
     count = f"{done} runs" if planned in (None, done) else f"{done} of {planned} runs (unfinished)"
-    devices = ", ".join(v["devices"])
-    machine = f"{v['cpu_count']} CPU cores ({devices})"
-    if not v["devices"][0].startswith("cpu"):  # an accelerator: name it
-        kind = v.get("device_kind", "accelerator")
-        machine = f"{len(v['devices'])} × {kind} ({devices}) and {v['cpu_count']} CPU cores"
+    machine = _machine(v)
+    # a resumed file's runs may come from other machines too: name them
+    others = dict.fromkeys(_machine(r) for r in results.get("resumed_with", []) if "devices" in r)
+    others.pop(machine, None)
+    if others:
+        machine += f", resumed on {'; '.join(others)}"
     line = (
         f"Seed {results['seed']}; {count} in {results['wall_seconds'] / 60:.1f} min "
         f"(fit + evaluation) on {machine}; rift_jax {v['rift_jax']}, jax {v['jax']}, "

@@ -293,7 +293,8 @@ def test_the_environment_line_names_every_commit_a_resumed_file_ran():
 
 
 def test_the_environment_line_names_the_accelerator_and_an_unfinished_study():
-    """A GPU run says which GPU; a study stopped early says how many of its runs it holds."""
+    """A GPU run says which GPU, and where it was resumed; a study stopped early says how
+    many of its runs it holds."""
     versions = {"cpu_count": 16, "devices": ["cuda:0"], "device_kind": "NVIDIA H100 80GB HBM3"}
     versions |= {"rift_jax": "0", "jax": "0", "python": "3"}
     results = {"seed": 0, "rows": [{}] * 8, "wall_seconds": 60.0, "versions": versions}
@@ -301,6 +302,9 @@ def test_the_environment_line_names_the_accelerator_and_an_unfinished_study():
     assert "8 of 12 runs (unfinished) in 1.0 min" in line
     assert "on 1 × NVIDIA H100 80GB HBM3 (cuda:0) and 16 CPU cores;" in line
     assert "8 runs in" in runner.environment_line(results | {"planned_runs": 8})
+    cpu = {"cpu_count": 2, "devices": ["cpu:0", "cpu:1"], "device_kind": "cpu"}
+    resumed = results | {"resumed_with": [versions, cpu]}  # finished on a CPU
+    assert "CPU cores, resumed on 2 CPU cores (cpu:0, cpu:1);" in runner.environment_line(resumed)
 
 
 def test_resume_reads_the_free_text_outcomes_of_older_files():
