@@ -124,43 +124,18 @@ class GRT(eqx.Module):
 
         The amplitude is kept when the new points reach no farther from the centre than
         these (supports, active sets, finer grids of the same box): its bound, from that
-        reach, holds for them too, and the programs compiled for one size serve the point
-        sets padded to it. It is chosen again for points reaching farther, and for
+        reach, holds for them too, and the programs compiled for one size serve every
+        point set padded to it. It is chosen again for points reaching farther, and for
         amplitudes of more than three terms (read from these points' own q), when the
-        points are concrete. Points reaching less far, where these needed the per-chunk
-        conditional, take one term when their own q allows it (read on the host for up to
-        `_REREAD` points × views), so that their chunks skip the conditional; that one term
-        holds for them and their subsets, which is how RIFT's active sets use it."""
+        points are concrete."""
         amplitude = self.amplitude
         near = amplitude.near
         if is_concrete((points, self.points)):
             new, old = host_float64(points), host_float64(self.points)
-            reach = np.max(np.linalg.norm(new, axis=1))
-            before = np.max(np.linalg.norm(old, axis=1))
-
-            def own():
+            farther = np.max(np.linalg.norm(new, axis=1)) > np.max(np.linalg.norm(old, axis=1))
+            if farther or (near is not None and len(near) > 3):
                 poses = (host_float64(self.positions), host_float64(self.orientations))
-                return _amplitude_for(self.radar, poses, new)
-
-            if reach > before or (near is not None and len(near) > 3):
-                amplitude = own()
-            elif (
-                near is not None
-                and reach < before
-                and len(new) * self.n_views <= _REREAD
-                and is_concrete((self.positions, self.orientations))
-            ):
-                # Points that stop short of these (RIFT's active set, a support's core) may
-                # need one term where these needed the per-chunk conditional: then their
-                # chunks skip it. On the paper's cube, whose support reaches the box's
-                # corners, RIFT's epochs ran 2.3x slower with it (2.06 s against 0.88 s).
-                # One term is read from these points' own q, so it holds for them and for
-                # subsets of them (what RIFT moves to next), not for any points this near.
-                try:
-                    simpler = own()
-                except ValueError:  # their own q needs more terms than any amplitude has
-                    simpler = amplitude
-                amplitude = simpler if simpler.near is None else amplitude
+                amplitude = _amplitude_for(self.radar, poses, new)
         return GRT(
             self.radar, self.positions, self.orientations, points, self.chunk_size, live, amplitude
         )
@@ -465,11 +440,6 @@ def _reach(positions: np.ndarray, points: np.ndarray) -> tuple[float, float]:
     O(views + points) on the host."""
     reach = float(np.max(np.linalg.norm(points, axis=1)))
     return reach, float(np.min(np.linalg.norm(positions, axis=1)))
-
-
-# `GRT.on` reads a smaller point set's own amplitude up to this many points × views
-# (`rift_jax._grt.largest_q`: ~0.2 s for 1,064 points and 100 views of the paper's radar)
-_REREAD = 10**6
 
 
 def _amplitude_for(radar: Radar, poses, points: np.ndarray) -> _grt.Amplitude:

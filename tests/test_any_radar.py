@@ -110,32 +110,12 @@ def test_chunks_near_the_antennas_take_more_terms_and_stay_exact(rng):
     back = np.asarray(operator.fn.adjoint(y))
     lhs, rhs = np.vdot(signal, y), np.vdot(rho, back)
     assert abs(lhs - rhs) / abs(lhs) < 1e-5
-    # a support of these points keeps the amplitude where its own q still needs the
-    # conditional (and so the programs compiled for its padded size); points reaching
-    # nearer the array get their own
+    # a support of these points keeps the amplitude (and so the programs compiled for its
+    # padded size, whichever points it holds); points reaching nearer the array do not
     assert operator.fn.on(split(points[::3])).amplitude is amplitude
     far = rj.grt_operator(rj.Radar(n_frequencies=16), views, points).fn  # 10 m away
     assert far.amplitude.near is None
     assert far.on(split(points * 4.5)).amplitude.near is not None
-
-
-def test_points_short_of_the_corners_skip_the_conditional(rng):
-    """The paper's radar 10 m out: a ±5 m box's corners need three terms in their chunks
-    (q ≈ 2.7e-5), points within 4 m of the centre one. An operator moved onto such points
-    (RIFT's active set on a support that reaches the corners) reads their own q and drops
-    the per-chunk conditional, and stays exact; points reaching as far keep it."""
-    radar = rj.Radar(n_frequencies=16)
-    views = rj.Viewpoints(np.array([0.3, 2.0, 4.0]), np.array([0.7, 1.4, 2.2]))
-    points = np.concatenate([random_points(rng, 400, 5.0), [[5.0, 5.0, 5.0], [-5.0, 5.0, -5.0]]])
-    fn = rj.grt_operator(radar, views, points).fn
-    assert fn.amplitude.near is not None
-    core = points[np.linalg.norm(points, axis=1) < 4.0]
-    moved = fn.on(split(core))
-    assert moved.amplitude.near is None and 50 < len(core) < 300
-    rho = random_complex(rng, len(core))
-    expected = per_view_reference(radar, views, core, rho)
-    assert relative_error(np.asarray(moved(rho)), expected) < 1e-5
-    assert fn.on(split(points[::-1])).amplitude is fn.amplitude  # as far: kept
 
 
 def test_the_radar_equation_spreading_is_exact(rng):
