@@ -77,8 +77,8 @@ class Candidates:
         then compile one step. Otherwise the set gets the next size of a ladder growing
         ~1.25x (`rift_jax._padding.ladder_size`). Padding repeats the first active point,
         not live (`GRT.live`: ρ = 0 there), so it adds nothing to the signals or
-        gradients. Every set, all the points too, carries `live`, so that sets of one size
-        share a program (where their amplitude is the same: `GRT.on`)."""
+        gradients. Every set, all the points too, carries `live`, so that one program
+        serves every set of a size."""
         if active is None:
             fn = self.fn
             if fn.live is None:
@@ -89,17 +89,8 @@ class Candidates:
         size = None if current is None else current.n_points
         fits = size is not None and n <= size
         cheap = fits and point_cost is not None and (size - own) * point_cost <= COMPILE_WORK
-        if fits and (size <= 1.5 * n or cheap):
-            kept = self._padded(active, size)
-            # the same program only if the amplitude is the same (`GRT.on` may give a set
-            # that stops short of the candidates' reach fewer terms): else it compiles
-            # anyway, and then at the set's own size
-            if kept.fn.amplitude == current.fn.amplitude:
-                return kept
-        return self._padded(active, own)
-
-    def _padded(self, active: np.ndarray, size: int) -> StepPoints:
-        n = len(active)
+        if not (fits and (size <= 1.5 * n or cheap)):
+            size = own
         index = np.concatenate([active, np.full(size - n, active[0])])
         live = np.arange(size) < n
         points = jax.tree.map(lambda a: a[index], self.fn.points)
