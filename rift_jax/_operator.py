@@ -219,7 +219,7 @@ class GRT(eqx.Module):
         starts = range(0, n + pad, size)
         cut = [a[i : i + size] for i in starts for a in leaves]
         # one transfer for every block (an array at a time cost ~2 ms per block)
-        cut = replicated(cut) if jax.device_count() > 1 else jax.device_put(cut)
+        cut = replicated(cut) if devices > 1 else jax.device_put(cut)
         k = len(leaves)
         return [
             eqx.tree_at(

@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 
 import jax
 import numpy as np
@@ -69,8 +70,6 @@ def cpu_processes(devices: int) -> dict[str, str]:
 def wait_all(runs: list[subprocess.Popen], what: str, timeout: float = 600) -> None:
     """Wait for every run; fail as soon as one fails (a multihost peer whose partner died
     would wait for it), and end the rest then, so that none outlives its test."""
-    import time
-
     deadline = time.monotonic() + timeout
     try:
         while any(run.poll() is None for run in runs):
