@@ -54,20 +54,25 @@ def pytest_terminal_summary(terminalreporter):
 
 
 # The files that take longest, by their summed test time in `tests/compile_profile.py`
-# (e79f5e7: 271, 204, 147, 139, 117, 102 and 78 s of the two workers' ~1,500). xdist hands
-# out whole files (`--dist loadfile`) in collection order (`--no-loadscope-reorder`; its
-# default order is by test count, which put the many quick bad-input checks first): the
-# longest first, so that the last files handed out are short and the two workers finish
-# together. In the profiled run, before this ordering, one worker's files summed to 780 s
-# and the other's to 709 s.
+# (2476b56, before the slow split: test_inr 356 s, test_experiments 370, test_support 382,
+# test_devices 194, test_examples 167, test_grt 123, test_stability 174, test_precision 105;
+# the two workers' ~2,570 s). xdist hands out whole files (`--dist loadfile`) in collection
+# order (`--no-loadscope-reorder`; its default order is by test count, which put the many
+# quick bad-input checks first): the longest first, so that the last files handed out are
+# short and the two workers finish together. The order serves both runs: the default one
+# (test_inr and test_support lead) and `-m slow` (test_experiments, test_devices and
+# test_examples lead).
 _LONGEST_FIRST = (
     "test_inr.py",
     "test_experiments.py",
-    "test_devices.py",
     "test_support.py",
+    "test_devices.py",
+    "test_examples.py",
+    "test_grt.py",
     "test_stability.py",
-    "test_operator.py",
     "test_precision.py",
+    "test_io.py",
+    "test_operator.py",
 )
 
 

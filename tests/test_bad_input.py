@@ -157,6 +157,7 @@ def _no_temporary_files(out: Path) -> None:
     assert not list(out.glob(".*.tmp")), "a half-written file was left behind"
 
 
+@pytest.mark.slow
 def test_an_interrupted_experiment_resumes_without_losing_or_repeating_a_run(tmp_path, monkeypatch):
     """experiments.stability at its quick scale, interrupted in the middle of its second
     run, then resumed."""

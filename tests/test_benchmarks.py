@@ -20,6 +20,7 @@ def quick(tmp_path_factory):
     return out, results
 
 
+@pytest.mark.slow
 def test_every_method_is_traced_against_its_own_clock(quick):
     out, results = quick
     cfg = time_to_quality.SCALES["quick"]
@@ -46,6 +47,7 @@ def test_every_method_is_traced_against_its_own_clock(quick):
     assert text.endswith("## Figures\n\n![time to quality](time_to_quality.png)\n")  # shown
 
 
+@pytest.mark.slow  # it reads the same quick run
 def test_a_finished_benchmark_resumes_without_repeating_a_run(quick, monkeypatch):
     out, results = quick
 

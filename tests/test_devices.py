@@ -99,6 +99,7 @@ def by_device_count(tmp_path_factory):
     return {n: dict(np.load(folder / f"{n}.npz")) for n in runs}
 
 
+@pytest.mark.slow
 def test_results_do_not_depend_on_the_device_count(by_device_count):
     """Same numbers on 1 and 4 devices: exactly where each view runs whole on one device,
     to float32 rounding where partial sums over voxels or views are added in another order
@@ -148,6 +149,7 @@ def test_plain_calls_compile_once(caplog):
         assert compilations(caplog, call) == [], f"{name} compiled again"
 
 
+@pytest.mark.slow
 def test_the_multihost_example_matches_one_process(tmp_path):
     """docs/examples/multihost.py run as two processes (two 'hosts' on this machine, talking
     through gloo) gives the single process's signal and least-squares image. (RIFT is only

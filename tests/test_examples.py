@@ -11,6 +11,11 @@ import math
 import runpy
 from pathlib import Path
 
+import pytest
+
+# end to end, 30-85 s each: CI's second command runs them (`pytest -m slow`, see .ci/run)
+pytestmark = pytest.mark.slow
+
 EXAMPLES = Path(__file__).resolve().parent.parent / "docs" / "examples"
 
 

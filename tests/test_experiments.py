@@ -47,6 +47,7 @@ def quick_run(request, tmp_path_factory):
     return name, module, out, results, figures
 
 
+@pytest.mark.slow
 def test_quick_scale_writes_every_file(quick_run):
     name, module, out, results, figures = quick_run
     for file in FILES + figures:
@@ -66,6 +67,7 @@ def test_quick_scale_writes_every_file(quick_run):
             assert volume.shape == volumes[f"truth/{row['scene']}"].shape
 
 
+@pytest.mark.slow
 def test_quick_scale_numbers_are_finite_and_in_range(quick_run):
     name, _, out, results, _ = quick_run
     for row in results["rows"]:
@@ -126,6 +128,7 @@ def test_shared_support_is_the_one_fit_estimates(small_cube):
     assert not other_noise.reused
 
 
+@pytest.mark.slow
 def test_resume_repeats_nothing_and_checks_the_config(quick_run, monkeypatch):
     _, module, out, results, _ = quick_run
 
@@ -165,6 +168,7 @@ def _had_old_form(row: dict, seed: int) -> bool:
     return row["seed"] == seed and ended
 
 
+@pytest.mark.slow
 def test_resume_keeps_runs_from_before_the_experiment_gained_settings(
     quick_run, monkeypatch, tmp_path
 ):

@@ -135,6 +135,7 @@ def test_operator_rejects_bad_input(problem):
         rj.grt_operator(radar, viewpoints, np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 10.0]]))
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # RIFT from one view fits little
 def test_degenerate_geometry_stays_finite():
     """Coincident viewpoints, a single viewpoint and a single frequency are legitimate

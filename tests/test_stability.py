@@ -188,6 +188,7 @@ def test_a_flat_loss_is_retried_then_the_best_attempt_returned(tiny, caplog):
 # -- dynamic range ------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ratio", [0.1, 0.01])
 def test_weak_target_down_to_1_to_100_is_located_at_its_ratio(ratio):
     """The weak-target scene at 1:10 and 1:100 on its own 0.24 m grid, from 40 views,
