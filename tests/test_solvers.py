@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import random_complex, relative_error
+from conftest import compilations, random_complex, relative_error
 
 import rift_jax as rj
 from rift_jax import solvers
@@ -63,6 +63,26 @@ def test_history_lengths(solutions):
     assert len(solutions["lsmr"].history) == 6  # checks, every 10 LSMR steps
     assert solutions["lsmr"].stopped.at == 60  # `stopped` counts LSMR steps, not checks
     assert len(solutions["gauss-newton"].history) == 3
+
+
+def test_lsmr_checked_at_another_interval_compiles_nothing(problem, solutions, caplog):
+    """LSMR's segment length is traced: a run checked every 3 steps reuses the program of
+    the runs checked every 10, and runs the 3 steps it asks for."""
+    operator, signal, _ = problem
+    run = {}
+
+    def lsmr():
+        run["solution"] = solvers.lsmr(
+            operator, signal, iterations=6, check_every=3, tol=0.0, progress=False
+        )
+        return run["solution"].rho
+
+    assert not [m for m in compilations(caplog, lsmr) if m.startswith("Compiling jit(_segment)")]
+    solution = run["solution"]
+    assert len(solution.history) == 2 and solution.stopped.at == 6
+    # 6 steps from 0 fit less than the 60 of the module's run, but they did fit something
+    ten = solutions["lsmr"].history.residual
+    assert ten[-1] < solution.history.residual[-1] < 1.0
 
 
 def test_one_loop_one_stopping_rule():

@@ -163,6 +163,7 @@ def _box_scenes(extent: float) -> dict[str, rj.Scene]:
     return scenes
 
 
+@pytest.mark.slow
 def test_auto_support_keeps_every_true_voxel():
     """The paper's radar, 60 views, forward grid 0.2 m and inverse grid 0.4 m over ±2 m:
     every voxel holding a scatterer is kept, while most of the grid is skipped; screening
@@ -314,9 +315,11 @@ def test_fit_on_a_padded_support_gives_the_unpadded_fit(small_cube, around_the_c
         assert padded.stats[key] == pytest.approx(plain.stats[key], rel=1e-4, abs=1e-6), key
 
 
+@pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # RIFT for 2 epochs fits little
 def test_supports_of_nearby_sizes_share_the_compiled_steps(small_cube, caplog):
     """Two fits whose supports differ in size but share a ladder rung (so FISTA's step
-    1/L, which follows the operator, differs too), compile FISTA's and LSMR's steps once."""
+    1/L, which follows the operator, differs too, and so does the count of live points
+    RIFT's sparsity term reads), compile FISTA's, LSMR's and RIFT's steps once."""
     radar, scene, train, _ = small_cube
     grid = rj.Scene.empty(scene.extent, 0.5)
     first = np.zeros(grid.shape, bool)
@@ -326,8 +329,12 @@ def test_supports_of_nearby_sizes_share_the_compiled_steps(small_cube, caplog):
     second[6, 3:5, 2:5] = True  # 72 points
     assert Support.padded(first).size == Support.padded(second).size == 72
     other = rj.scenes.cube(0.5, extent=2.0, edge=0.5)
-    for method, step in (("fista", "_update"), ("lsmr", "_segment")):
-        common = dict(radar=radar, method=method, granularity=0.5, progress=False)
+    for method, step, options in (
+        ("fista", "_update", {}),
+        ("lsmr", "_segment", {}),
+        ("rift-n", "_step", {"epochs": 2}),
+    ):
+        common = dict(radar=radar, method=method, granularity=0.5, progress=False, **options)
         once = compilations(
             caplog, lambda common=common: rj.fit(scene, train, support=first, **common).scene
         )

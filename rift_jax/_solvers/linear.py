@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import lineax as lx
-from jaxtyping import Array, Complex
+import numpy as np
+from jaxtyping import Array, Complex, Int
 
 from .._operator import GRTOperator
 from .._precision import exact_jit
@@ -55,8 +56,11 @@ def lsmr(
     steps = min(check_every, iterations)
     norm = jnp.linalg.norm(signal)
 
+    # traced, not static: runs that check every 5, 10 or 100 steps share one program
+    n_steps = np.asarray(steps, np.int32)
+
     def step(x):
-        x, norm_r = _segment(operator, signal, x, steps)
+        x, norm_r = _segment(operator, signal, x, n_steps)
         return x, relative(norm_r, norm)
 
     x, history, stopped, stats = iterate(
@@ -75,9 +79,10 @@ def lsmr(
 
 
 @exact_jit
-def _segment(operator: GRTOperator, signal, x, steps: int):
-    """``steps`` LSMR steps from ``x``: (new x, ‖y − Ax‖). Module-level, so repeated runs of
-    one problem size compile once."""
+def _segment(operator: GRTOperator, signal, x, steps: Int[Array, ""]):
+    """``steps`` LSMR steps from ``x``: (new x, ‖y − Ax‖). Module-level and with ``steps``
+    traced (lineax only compares its step count with it), so repeated runs of one problem
+    size compile once, whatever their ``check_every``."""
     solver = lx.LSMR(rtol=0.0, atol=0.0, max_steps=steps)  # no tolerance: always `steps`
     solution = lx.linear_solve(operator, signal, solver, options={"y0": x}, throw=False)
     return solution.value, solution.stats["norm_r"]

@@ -162,6 +162,8 @@ def train(
                 step_sizes.add(step_points.n_points)
         batches = trained_views[batch_order(rng, n_views, batch)]
         indices = replicated(jnp.asarray(batches))
+        # traced, not static: steps on stages of other live counts share a program
+        over = replicated(jnp.asarray(candidates.n_live, jnp.float32))
         params, opt_state = state.params, state.opt_state
         step_losses, finite, step_residuals = [], [], []
         for i in range(steps):
@@ -169,7 +171,7 @@ def train(
             before = params
             params, opt_state, loss, ok, residual = _step(
                 params, opt_state, static, optimizer, recipe.loss_fn, step_points, signal,
-                indices[i], sparsity=float(recipe.sparsity), over=candidates.n_live,
+                indices[i], sparsity=float(recipe.sparsity), over=over,
             )  # fmt: skip
             step_losses.append(loss)
             finite.append(ok)
@@ -345,12 +347,13 @@ def _residual(params, static, points: StepPoints, signal, index) -> Float[Array,
 @exact_jit
 def _step(
     params, opt_state, static, optimizer, loss_fn, points: StepPoints, signal, index,
-    sparsity: float = 0.0, over: int = 1,
+    sparsity: float = 0.0, over: Float[Array, ""] | float = 1.0,
 ):  # fmt: skip
     """One optimizer step on the viewpoints ``index``: (params, state, loss, all gradients
     finite, ‖y_b − A_b ρ‖²). The loss is the data term, plus ``sparsity`` times
     `concentration` of ρ over the stage's ``over`` live candidate points when it is not 0
-    (static settings: without the term, the program is the same as before it existed)."""
+    (``sparsity`` is static: without the term, the program is the same as before it
+    existed; ``over`` is traced, so that it does not key the compilation)."""
     rows = points.fn.subset(index)
     target = signal[index]
 
@@ -369,7 +372,7 @@ def _step(
     return eqx.apply_updates(params, updates), opt_state, loss, finite, residual
 
 
-def concentration(rho: Complex[Array, " n"], live, k: int) -> Float[Array, ""]:
+def concentration(rho: Complex[Array, " n"], live, k: Float[Array, ""] | int) -> Float[Array, ""]:
     """‖ρ‖₁ / (√k‖ρ‖₂) over the live entries of ``rho``, for a field on k points (the
     stage's candidates) that is 0 off these entries (an active set's): a sparsity measure
     that ignores scale (the gain carries it), 1 for a flat field on all k and 1/√k for a
