@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float, PRNGKeyArray
 
-from ._precision import exact_products
+from ._precision import exact_jit, exact_products
 from ._validation import check_positive, check_positive_int
 
 
@@ -253,7 +253,7 @@ class Field(eqx.Module):
         re, im = self.model(xyz / self.extent)
         return self.gain * jax.lax.complex(re, im)
 
-    @eqx.filter_jit
+    @exact_jit  # full float32, and one tracing context wherever it is called from
     def render(self, points: Float[Array, "n 3"]) -> Complex[Array, " n"]:
         """ρ at each of ``points`` (metres), complex64. Evaluated in batches of 65,536 points,
         so that fine grids do not hold every hidden activation at once. Jitted: compiles

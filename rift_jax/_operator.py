@@ -25,7 +25,7 @@ from jaxtyping import Array, Bool, Complex, Float, Int
 
 from . import _grt
 from ._geometry import Radar, Viewpoints, antennas_at
-from ._precision import Float64Pair, host_float64, leading, split, to_float64
+from ._precision import Float64Pair, exact_jit, host_float64, leading, split, to_float64
 from ._sharding import over_views, pinned, replicated
 from ._validation import (
     as_finite_array,
@@ -230,7 +230,7 @@ class GRT(eqx.Module):
             for j in range(len(starts))
         ]
 
-    @eqx.filter_jit
+    @exact_jit  # one tracing context wherever it is called from: one cache entry
     def _signals(self, rho: Complex[Array, " n_points"]) -> Complex[Array, "v f m n"]:
         """`__call__` for every view in one program (ρ checked by the caller)."""
         rho = self.masked(rho)
@@ -247,7 +247,7 @@ class GRT(eqx.Module):
         poses = (self.positions, self.orientations)
         return over_views(local, *poses, rho, reduce=False)[: self.n_views]
 
-    @eqx.filter_jit
+    @exact_jit  # as `_signals`
     def adjoint(self, signal: Complex[Array, "v f m n"]) -> Complex[Array, " n_points"]:
         """Backprojection of all viewpoints, Σ_i view_adjoint(signal[i], i): the exact
         conjugate transpose of `__call__`."""
@@ -286,7 +286,7 @@ class GRT(eqx.Module):
         )
 
 
-@eqx.filter_jit
+@exact_jit  # as `GRT._signals`
 def _row(fn: GRT, kernel, data, index):
     """One row block (``kernel`` is `forward_view` or `adjoint_view`), jitted once per shape."""
     pose = jax.tree.map(lambda a: a[index], (fn.positions, fn.orientations))

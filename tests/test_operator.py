@@ -1,5 +1,7 @@
 """The many-viewpoint operator: agreement with the reference, exact adjoint, row blocks."""
 
+import re
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -7,7 +9,7 @@ import lineax as lx
 import numpy as np
 import pytest
 import reference
-from conftest import random_complex, relative_error
+from conftest import compilations, random_complex, relative_error
 
 import rift_jax as rj
 
@@ -93,7 +95,6 @@ def test_plain_calls_run_in_view_blocks_sharing_one_program(problem, caplog):
     program, bit for bit where each view runs whole on one device. Another view count
     that pads to the same blocks, and inputs copied to every device (as `fit`'s residual
     passes them), compile no forward of their own; no view at all gives no signal."""
-    from conftest import compilations
 
     from rift_jax._operator import views_per_block
     from rift_jax._sharding import replicated
@@ -117,6 +118,34 @@ def test_plain_calls_run_in_view_blocks_sharing_one_program(problem, caplog):
     assert not [m for m in compilations(caplog, lambda: copied[0](copied[1])) if "_signals" in m]
     np.testing.assert_array_equal(more(rho)[: size + 1], many(rho))
     assert op.fn.subset(np.array([], int))(rho).shape == (0, *op.fn.radar.signal_shape)
+
+
+PRODUCTS = r"Compiling jit\((_signals|adjoint|_row|render)\)"
+
+
+def test_products_trace_once_whatever_the_callers_matmul_precision(problem, caplog):
+    """The operator's products (all views, one view and its adjoint) and a field's
+    rendering are traced under "highest" whatever the caller's setting, so a plain call
+    made under another setting finds the program a plain call made before: it compiles
+    none of them again (the eager conversions around them are the caller's)."""
+    _, _, points, op, rng = problem
+    rho = jnp.asarray(random_complex(rng, len(points)))
+    field = rj.Field(rj.RiftN(width=8, depth=1, key=jax.random.key(0)), 1.0)
+    calls = (
+        lambda: op.fn(rho),
+        lambda: op.fn.adjoint(op.fn(rho)),
+        lambda: op.fn.view_adjoint(op.fn.view(rho, 1), 1),
+        lambda: field.render(points),
+    )
+    for call in calls:
+        jax.block_until_ready(call())
+    fresh = compilations(caplog, lambda: jax.jit(lambda v: v * 3.0)(jnp.ones(13)))
+    assert fresh, "a new program shows in the log"  # so an empty log below means something
+    for setting in ("highest", "bfloat16"):
+        with jax.default_matmul_precision(setting):
+            for call in calls:
+                compiled = compilations(caplog, call)
+                assert not [m for m in compiled if re.match(PRODUCTS, m)], setting
 
 
 def test_operator_rejects_bad_input(problem):
