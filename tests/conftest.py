@@ -24,7 +24,9 @@ import rift_jax as rj
 # Most of the suite's time is XLA compiling, and its processes (the xdist workers, and the
 # subprocesses some tests start) compile many of the same programs: they share them through
 # JAX's disk cache, in a fresh folder per test run (made by the first process, which the
-# others inherit it from, and which removes it at the end), so nothing is kept between runs.
+# others inherit it from, and which removes it at the end), so nothing is kept between runs;
+# or in the folder `RIFT_JAX_TEST_CACHE` names, which is then left to its owner (.ci/run
+# shares one between its two commands).
 _OWNER = "RIFT_JAX_TEST_CACHE" not in os.environ
 if _OWNER:
     os.environ["RIFT_JAX_TEST_CACHE"] = tempfile.mkdtemp(prefix="rift_jax_tests_")
@@ -44,9 +46,9 @@ def pytest_sessionfinish(session):
 
 def pytest_terminal_summary(terminalreporter):
     """The machine's own speed beside the suite's time, measured once the workers are done.
-    The same 2-core machine is not equally fast every day: the suite took 743-777 s in
-    earlier sessions (whose benchmarks record 10-18 G/s), and 1,391 s on a day of 6.2-7.3
-    G/s."""
+    The same 2-core machine is not equally fast every day: the whole suite (slow tests
+    included) took 743-777 s in earlier sessions (whose benchmarks record 10-18 G/s),
+    1,391 s on a day of 6.2-7.3 G/s and 1,306 s at 11.5 G/s (2476b56)."""
     from benchmarks._timing import complex_matmul_rate
 
     rate = complex_matmul_rate()
@@ -54,9 +56,10 @@ def pytest_terminal_summary(terminalreporter):
 
 
 # The files that take longest, by their summed test time in `tests/compile_profile.py`
-# (2476b56, before the slow split: test_inr 356 s, test_experiments 370, test_support 382,
-# test_devices 194, test_examples 167, test_grt 123, test_stability 174, test_precision 105;
-# the two workers' ~2,570 s). xdist hands out whole files (`--dist loadfile`) in collection
+# (default run at 573748a: test_inr 327 s, test_support 247, test_grt 95, test_precision
+# 95, test_stability 87, test_io 84, test_operator 75 of the two workers' 1,318; the slow
+# run's test_experiments, test_devices and test_examples held 345, 167 and 167 s of 1,012
+# at 2476b56). xdist hands out whole files (`--dist loadfile`) in collection
 # order (`--no-loadscope-reorder`; its default order is by test count, which put the many
 # quick bad-input checks first): the longest first, so that the last files handed out are
 # short and the two workers finish together. The order serves both runs: the default one

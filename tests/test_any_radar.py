@@ -232,6 +232,7 @@ def test_antennas_too_far_apart_for_the_expansion_are_refused():
         rj.grt_operator(radar, views, np.stack([np.zeros(3), 0.8 * tx[0]]))
 
 
+@pytest.mark.slow  # a docs/examples script, end to end, as the others
 def test_the_sar_track_example_reconstructs_from_its_file(tmp_path):
     """docs/examples/sar_track.py, run as its page shows: the file holds the monostatic
     radar and the 72 poses, and the reconstruction read from it finds the pyramid."""

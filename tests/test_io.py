@@ -532,6 +532,7 @@ def test_ply_point_clouds_parse_with_the_right_points_and_values(reference, tmp_
 # --- The example ----------------------------------------------------------------------
 
 
+@pytest.mark.slow  # a docs/examples script, end to end, as the others
 def test_the_your_own_data_example_writes_what_it_says(tmp_path):
     """docs/examples/your_own_data.py, run as its page shows: every file it names, each
     readable, the reconstruction a fair image of the pyramid, and the saved result the
