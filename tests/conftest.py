@@ -155,3 +155,10 @@ def compilations(caplog, call) -> list[str]:
     with caplog.at_level(logging.WARNING, logger="jax"), jax.log_compiles():
         jax.block_until_ready(call())
     return [r.getMessage() for r in caplog.records if r.getMessage().startswith("Compiling")]
+
+
+def assert_compilations_are_logged(caplog) -> None:
+    """Fails unless a new program shows in `compilations`' log: a test that then finds no
+    compilation of its program knows that none happened, not that none was recorded."""
+    fresh = compilations(caplog, lambda: jax.jit(lambda v: v * 3.0)(np.ones(11, np.float32)))
+    assert fresh, "a new program does not show in the log"
