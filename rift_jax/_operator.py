@@ -120,7 +120,8 @@ class GRT(eqx.Module):
 
     def on(self, points: Float64Pair, live: Bool[Array, " k"] | None = None) -> GRT:
         """The same radar and viewpoints on other ``points`` (a float32 pair, see
-        `rift_jax._precision.split`), of which ``live`` exist (None: all).
+        `rift_jax._precision.split`), of which ``live`` exist (None: all; marked so when
+        this GRT marks its own).
 
         The amplitude is kept when the new points reach no farther from the centre than
         these (supports, active sets, finer grids of the same box): its bound, from that
@@ -130,6 +131,8 @@ class GRT(eqx.Module):
         points are concrete."""
         amplitude = self.amplitude
         near = amplitude.near
+        if live is None and self.live is not None:  # one structure, as `grt_operator`'s
+            live = jnp.ones(leading(points), bool)
         if is_concrete((points, self.points)):
             new, old = host_float64(points), host_float64(self.points)
             farther = np.max(np.linalg.norm(new, axis=1)) > np.max(np.linalg.norm(old, axis=1))
@@ -392,6 +395,8 @@ def grt_operator(
     - `pad_to`: pad the points to this many with copies of the last one that hold ρ = 0
       (zero columns: `GRT.live`), so that problems of similar sizes share compiled
       programs; ρ and Aᴴy then have ``pad_to`` entries, the padded ones zero in Aᴴy.
+      Without it, `GRT.live` marks every point: operators of one size, padded or not,
+      have one structure and share their compiled programs.
 
     **Returns:** a `GRTOperator` (a `lineax.AbstractLinearOperator`) from complex64 ρ of shape
     (V,) to signals of shape (n_views, n_freq, n_tx, n_rx). Its `.fn` is the `GRT` module (row
@@ -425,9 +430,10 @@ def grt_operator(
                 f"grt_operator: `pad_to` ({pad_to}) must be at least the number of "
                 f"`grid_points` ({len(points)})."
             )
-    live = None
+    # `live` even when every point is: an operator of one shape then has one structure,
+    # padded or not, and shares its compiled programs (a mask of ones changes no value)
+    live = jnp.asarray(np.arange(pad_to or len(points)) < len(points))
     if pad_to is not None:  # on the host: an eager jnp.pad would compile for every size
-        live = jnp.asarray(np.arange(pad_to) < len(points))
         points = np.pad(points, ((0, pad_to - len(points)), (0, 0)), mode="edge")
     amplitude = _amplitude_for(radar, (positions, orientations), points)
     poses = split(positions), split(orientations)

@@ -424,7 +424,9 @@ def test_a_padded_active_set_trains_as_the_set_itself(small_cube):
     assert candidates.restricted(active[:30], padded, point_cost=1.0).n_points == 56  # keeps
     assert candidates.restricted(active[:30], padded, point_cost=1e12).n_points == 32
     plain = eqx.tree_at(
-        lambda p: p.points, operator.fn, jax.tree.map(lambda a: a[active], operator.fn.points)
+        lambda p: (p.points, p.live),
+        operator.fn,
+        (jax.tree.map(lambda a: a[active], operator.fn.points), operator.fn.live[active]),
     )
     plain = StepPoints(plain, jnp.asarray(scene.points()[active], jnp.float32))
     field = rj.Field(rj.RiftN(width=16, depth=2, key=jax.random.key(0)), extent=2.0, gain=3.0)
