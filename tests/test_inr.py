@@ -6,13 +6,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import reference
-from conftest import compilations, random_complex, run_docs_block
+from conftest import assert_compilations_are_logged, compilations, random_complex, run_docs_block
 
 import rift_jax as rj
 from rift_jax._solvers._common import as_complex, as_pair, realified
 from rift_jax._solvers.inr.active_set import Candidates, StepPoints
 from rift_jax._solvers.inr.optimizer import _decay_mask, optimizer_for
-from rift_jax._solvers.inr.training import _step, batch_order
+from rift_jax._solvers.inr.training import _step, batch_order, on_extent
 from rift_jax._support import mask_at
 
 # These tests train tiny budgets to test training's mechanics, not its quality: whether a
@@ -543,6 +543,41 @@ def test_coarse_to_fine_on_a_support_after_patience_and_a_coarse_divergence(smal
     pred = rj.synthesize(result.scene, train, radar)
     kept = fragile(jnp.asarray(pred.signal * pred.scale / data.scale), jnp.asarray(data.signal))
     assert np.isfinite(float(kept))
+
+
+def test_fields_of_any_extent_train_with_one_compiled_step(tiny, caplog):
+    """The step trains the field on coordinates already divided by its extent (the extent
+    is a static field of `Field`, so it would key the compilation): fits of other extents
+    share one compiled step. The division is the one `Field` makes, bit for bit, so the
+    returned field predicts what training measured (here the held-out residual, at an
+    extent that is not a power of two)."""
+    radar, scene, train, _ = tiny
+    operator = rj.grt_operator(radar, train, scene.points())
+    signal = jnp.asarray(rj.synthesize(scene, train, radar).signal)
+    common = dict(epochs=3, holdout=4, patience=None, progress=False)
+    rj.solvers.rift(operator, signal, extent=1.0, **common)
+    assert_compilations_are_logged(caplog)
+    solution = None
+
+    def other_extent():
+        nonlocal solution
+        solution = rj.solvers.rift(operator, signal, extent=1.5, **common)
+        return solution.rho
+
+    assert not [m for m in compilations(caplog, other_extent) if "jit(_step)" in m]
+    field = solution.field
+    assert field.extent == 1.5
+    held = np.asarray(solution.stats["holdout_views"])
+    pred = np.asarray(operator.fn(field.render(jnp.asarray(scene.points(), jnp.float32))))
+    target = np.asarray(signal)[held]
+    recomputed = np.linalg.norm(pred[held] - target) / np.linalg.norm(target)
+    assert recomputed == pytest.approx(solution.stats["best_loss"], rel=1e-5)
+    # the coordinates the step renders at are those `Field` divides, to the bit
+    unit = on_extent(field, 1.0)
+    coords = Candidates(operator.fn, scene.points().astype(np.float64), 1.5).coords
+    np.testing.assert_array_equal(
+        np.asarray(unit.render(coords)), np.asarray(field.render(scene.points()))
+    )
 
 
 def test_holdout_views_are_never_trained_on_and_choose_the_best(small_cube):

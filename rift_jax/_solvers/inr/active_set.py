@@ -33,15 +33,19 @@ COMPILE_WORK = 1e10
 
 
 class Candidates:
-    """The points a RIFT stage may train (the GRT `fn`'s) and how to pick its active set."""
+    """The points a RIFT stage may train (the GRT `fn`'s) and how to pick its active set.
 
-    def __init__(self, fn: GRT, points: np.ndarray):  # points: fn's, in float64
+    The field it renders sees coordinates divided by ``scale`` (``coords``: the training's
+    field maps ±1 onto its INR's cube, see `rift_jax._solvers.inr.training`)."""
+
+    def __init__(self, fn: GRT, points: np.ndarray, scale: float = 1.0):  # points: float64
         self.fn, self.points = fn, points
         # the points that exist: an operator padded to a shared size (`grt_operator`'s
         # pad_to) holds copies of one of them, which must never join an active set
         self.live = fn.live_points()
         self.n_live = int(self.live.sum())
-        self.coords = jnp.asarray(points, jnp.float32)
+        # as `Field` divides them: the same float32 values the field would see at `points`
+        self.coords = jnp.asarray(points, jnp.float32) / scale
         self.tree = scipy.spatial.cKDTree(points)
         if len(points) > 1:  # neighbours: within √3 spacings (the 26 around a grid point)
             distance, _ = self.tree.query(points, k=2)
@@ -98,8 +102,9 @@ class Candidates:
 
 
 class StepPoints(eqx.Module):
-    """What a RIFT step trains: the GRT on its points and their float32 coordinates (the
-    GRT's `live` marks padding, where ρ counts as 0)."""
+    """What a RIFT step trains: the GRT on its points and their float32 coordinates in the
+    field's frame (`Candidates.coords`; the GRT's `live` marks padding, where ρ counts as
+    0)."""
 
     fn: GRT
     coords: Float[Array, "k 3"]

@@ -102,6 +102,11 @@ def train(
             field = Field(field.model, extent, gain)
     initial_gain = float(abs(field.gain))  # for the collapse check: has it drifted to zero?
 
+    # The step trains the field on coordinates already divided by its extent (a float32
+    # division, as `Field` does it), so that its compiled program does not depend on the
+    # extent, a static field of `Field`: fits of other extents share it.
+    scale = field.extent
+    field = on_extent(field, 1.0)
     n_views = len(trained_views)
     measurements = int(np.prod(signal.shape[1:]))  # per view: frequencies × TX × RX
     batch = n_views if recipe.batch_views is None else min(recipe.batch_views, n_views)
@@ -118,7 +123,7 @@ def train(
     rng = np.random.default_rng(seed)
     # the candidate points (the operator's, then `fine_points`) and the active ones among
     # them (None: all); the step sees only the active ones
-    candidates = Candidates(fn, points)
+    candidates = Candidates(fn, points, scale)
     active = None
     if recipe.prune is not None and init is not None:
         active = candidates.select(field, recipe.prune)
@@ -133,7 +138,7 @@ def train(
         current = eqx.combine(state.params, static)
         fresh = k == state.switch
         if fresh:  # coarse to fine: same parameters and optimizer state
-            candidates = Candidates(fn.on(split(fine_points)), fine_points)
+            candidates = Candidates(fn.on(split(fine_points)), fine_points, scale)
             active = None if recipe.prune is None else candidates.select(current, recipe.prune)
             step_points, stage_start = candidates.restricted(active), k
             step_sizes.add(step_points.n_points)
@@ -212,7 +217,7 @@ def train(
 
     def result(run: Run) -> Solution:
         best_params, trained_on, trained_active, fine_from = run.best
-        best = eqx.combine(best_params, static)
+        best = on_extent(eqx.combine(best_params, static), scale)
         index = run.stats["best"]
         measures = holdout_residuals if len(held) else run.history.loss
         trained = trained_on.live.copy()
@@ -257,7 +262,7 @@ def train(
         image=lambda state: (state.params, state.candidates, state.active, None),
         start_measure=math.inf,
         monitor=monitor,
-        shown=lambda best: eqx.combine(best[0], static),
+        shown=lambda best: on_extent(eqx.combine(best[0], static), scale),
         then=fine_after_coarse if switch is not None else None,
         finish=result,
         hint="Try a lower learning_rate or a clip_norm.",
@@ -312,6 +317,14 @@ def initial_field(where, model, init, width, depth, extent, seed) -> Field:
             f"{where}: `model` must be a name or an AbstractINR, got {type(model).__name__}."
         )
     return Field(model, extent)
+
+
+def on_extent(field: Field, extent: float) -> Field:
+    """``field``'s INR and gain (the same arrays) mapping ±``extent`` onto the INR's cube."""
+    if field.extent == extent:
+        return field
+    moved = Field(field.model, extent)
+    return eqx.tree_at(lambda f: (f.log_gain, f.phase), moved, (field.log_gain, field.phase))
 
 
 def n_steps(n: int, size: int) -> int:
