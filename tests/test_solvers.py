@@ -27,12 +27,13 @@ RUNS = {
 
 
 @pytest.fixture(scope="module")
-def problem():
-    """24 viewpoints x 128 samples of a 125-voxel random scene: overdetermined and
-    well-conditioned, so least squares recovers ρ; the reference is float64 NumPy lstsq."""
-    radar = rj.Radar(n_frequencies=8, n_tx=4, n_rx=4)
-    viewpoints = rj.Viewpoints.grid(6, 4, polar_range=(0.3, 1.2))
-    operator = rj.grt_operator(radar, viewpoints, rj.grid_points(1.0, 0.5))
+def problem(tiny):
+    """30 viewpoints x 128 samples of a 125-voxel random scene: overdetermined and
+    well-conditioned, so least squares recovers ρ; the reference is float64 NumPy lstsq.
+    `tiny`'s radar, viewpoints and grid, so that the solvers' programs are those its fits
+    compile."""
+    radar, scene, viewpoints, _ = tiny
+    operator = rj.grt_operator(radar, viewpoints, scene.points())
     rho = random_complex(np.random.default_rng(1), operator.fn.n_points)
     signal = np.asarray(operator.mv(jnp.asarray(rho)))
     matrix = np.asarray(operator.as_matrix(), np.complex128)
@@ -222,7 +223,7 @@ def test_bad_signal(problem, name):
     bad[0, 0, 0, 0] = np.nan
     with pytest.raises(ValueError, match="`signal` must be finite"):
         f(operator, bad, progress=False)
-    with pytest.raises(ValueError, match=r"`signal` must have shape \(24, 8, 4, 4\)"):
+    with pytest.raises(ValueError, match=r"`signal` must have shape \(30, 8, 4, 4\)"):
         f(operator, signal[:-1], progress=False)
     with pytest.raises(ValueError, match="`iterations` must be a positive integer"):
         f(operator, signal, iterations=0, progress=False)
