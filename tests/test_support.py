@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.ndimage
-from conftest import compilations, relative_error
+from conftest import assert_compilations_are_logged, compilations, relative_error
 
 import rift_jax as rj
 import rift_jax._fit
@@ -254,7 +254,7 @@ def test_ladder_size_with_eight_sizes_per_octave_pads_by_at_most_an_eighth():
         ladder_size(10, 3)
 
 
-def test_a_padded_operator_is_the_operator_with_zero_columns(small_radar, rng):
+def test_a_padded_operator_is_the_operator_with_zero_columns(small_radar, rng, caplog):
     """`pad_to` appends copies of the last point that are not live: A·diag(live), whose
     padded columns are zero in every product and in the adjoint."""
     viewpoints = rj.Viewpoints.grid(3, 1)  # 3 views over 2 devices: view padding too
@@ -275,6 +275,12 @@ def test_a_padded_operator_is_the_operator_with_zero_columns(small_radar, rng):
     np.testing.assert_allclose(back[:9], np.asarray(plain.fn.adjoint(signal)), rtol=1e-5)
     with pytest.raises(ValueError, match="pad_to"):
         rj.grt_operator(small_radar, viewpoints, points, pad_to=8)
+    # an operator that is not padded marks every point live: one of 12 points and this one
+    # padded to 12 have one structure, and share the programs compiled for either
+    assert plain.fn.live is not None and bool(plain.fn.live.all())
+    whole = rj.grt_operator(small_radar, viewpoints, rng.uniform(-1, 1, (12, 3)))
+    assert_compilations_are_logged(caplog)
+    assert not compilations(caplog, lambda: (whole.fn(on_padding), whole.fn.adjoint(signal)))
 
 
 @pytest.mark.parametrize("method", ["lsmr", "fista", "kaczmarz", "gauss-newton"])
