@@ -165,9 +165,7 @@ def test_a_flat_loss_is_retried_then_the_best_attempt_returned(tiny, caplog):
     runs = []
 
     def run():
-        runs.append(
-            rj.fit(scene, train, learning_rate=1e-12, batch_views=None, radar=radar, **TINY)
-        )
+        runs.append(rj.fit(scene, train, learning_rate=1e-12, radar=radar, **TINY))
         return runs[-1].scene.reflectivity
 
     with (
