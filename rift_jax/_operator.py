@@ -73,7 +73,9 @@ class GRT(eqx.Module):
     points and poses: `grt_operator` chooses it, and so does the constructor when it is not
     given.
 
-    ``live`` (None: every point) marks the points that exist: the GRT is then A·diag(live),
+    ``live`` marks the points that exist (None, for a GRT built directly: every point;
+    `grt_operator` always sets it, so that its operators of one size, padded or not, have
+    one structure and share their compiled programs): the GRT is then A·diag(live),
     whose other columns are zero, so ρ there changes no signal and gets no backprojection.
     The others are padding (`grt_operator`'s ``pad_to``): a problem padded to a size shared
     with others reuses their compiled programs, and every solver's answer on the live
@@ -132,7 +134,7 @@ class GRT(eqx.Module):
         amplitude = self.amplitude
         near = amplitude.near
         if live is None and self.live is not None:  # one structure, as `grt_operator`'s
-            live = jnp.ones(leading(points), bool)
+            live = jax.device_put(np.ones(leading(points), bool))  # (jnp.ones compiles)
         if is_concrete((points, self.points)):
             new, old = host_float64(points), host_float64(self.points)
             farther = np.max(np.linalg.norm(new, axis=1)) > np.max(np.linalg.norm(old, axis=1))
@@ -432,7 +434,7 @@ def grt_operator(
             )
     # `live` even when every point is: an operator of one shape then has one structure,
     # padded or not, and shares its compiled programs (a mask of ones changes no value)
-    live = jnp.asarray(np.arange(pad_to or len(points)) < len(points))
+    live = jax.device_put(np.arange(pad_to or len(points)) < len(points))
     if pad_to is not None:  # on the host: an eager jnp.pad would compile for every size
         points = np.pad(points, ((0, pad_to - len(points)), (0, 0)), mode="edge")
     amplitude = _amplitude_for(radar, (positions, orientations), points)

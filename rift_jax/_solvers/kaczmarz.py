@@ -132,7 +132,7 @@ def _sweep(fn: GRT, points, mask, x, signal, order, lam):
     n_dev = jax.device_count()
 
     def body(points, mask, x, signal, order, lam):
-        local = fn.on(points)  # `mask` stands for the operator's `live`
+        local = fn.on(points)  # `mask` stands for the operator's `live` (local's: all true)
         total = (lambda v: jax.lax.psum(v, DEVICES)) if n_dev > 1 else (lambda v: v)
 
         def block(k, x):

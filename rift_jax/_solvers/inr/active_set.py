@@ -8,6 +8,7 @@ where the work it saves outweighs a compilation (`COMPILE_WORK`).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import equinox as eqx
@@ -35,17 +36,18 @@ COMPILE_WORK = 1e10
 class Candidates:
     """The points a RIFT stage may train (the GRT `fn`'s) and how to pick its active set.
 
-    The field it renders sees coordinates divided by ``scale`` (``coords``: the training's
-    field maps ±1 onto its INR's cube, see `rift_jax._solvers.inr.training`)."""
+    ``coords`` are the points divided by ``scale``, the extent of the field they are for:
+    the training's field, which maps ±1 onto its INR's cube (see
+    `rift_jax._solvers.inr.training`), renders at them what a field of extent ``scale``
+    renders at ``points``."""
 
     def __init__(self, fn: GRT, points: np.ndarray, scale: float = 1.0):  # points: float64
-        self.fn, self.points = fn, points
+        self.fn, self.points, self.scale = fn, points, float(scale)
         # the points that exist: an operator padded to a shared size (`grt_operator`'s
         # pad_to) holds copies of one of them, which must never join an active set
         self.live = fn.live_points()
         self.n_live = int(self.live.sum())
-        # as `Field` divides them: the same float32 values the field would see at `points`
-        self.coords = jnp.asarray(points, jnp.float32) / scale
+        self.coords = _in_frame(jnp.asarray(points, jnp.float32), self.scale)
         self.tree = scipy.spatial.cKDTree(points)
         if len(points) > 1:  # neighbours: within √3 spacings (the 26 around a grid point)
             distance, _ = self.tree.query(points, k=2)
@@ -55,8 +57,10 @@ class Candidates:
             self.radius = 0.0
 
     def select(self, field: Field, prune: float) -> np.ndarray:
-        """The sorted indices of the live points where |ρ| ≥ prune · max |ρ|, and their
-        live neighbours."""
+        """The sorted indices of the live points where |ρ| ≥ prune · max |ρ| for ``field``
+        (in the frame of `coords`: of extent 1 when ``scale`` is not), and their live
+        neighbours."""
+        assert self.scale == 1.0 or field.extent == 1.0, "scaled coords: a field of extent 1"
         magnitude = np.where(self.live, np.abs(np.asarray(field.render(self.coords))), 0)
         seeds = np.flatnonzero(self.live & (magnitude >= prune * magnitude.max()))
         near = self.tree.query_ball_point(self.points[seeds], self.radius, return_sorted=False)
@@ -99,6 +103,14 @@ class Candidates:
         live = np.arange(size) < n
         points = jax.tree.map(lambda a: a[index], self.fn.points)
         return replicated(StepPoints(self.fn.on(points, jnp.asarray(live)), self.coords[index]))
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _in_frame(points: Float[Array, "n 3"], extent: float) -> Float[Array, "n 3"]:
+    """``points / extent`` as `Field` divides them inside its programs, the extent a constant
+    (XLA may multiply by its reciprocal instead, and on CPU does): bit for bit the
+    coordinates a field of that extent gives its INR, on every backend."""
+    return points / extent
 
 
 class StepPoints(eqx.Module):
