@@ -132,13 +132,13 @@ def _sweep(fn: GRT, points, mask, x, signal, order, lam):
     n_dev = jax.device_count()
 
     def body(points, mask, x, signal, order, lam):
-        local = fn.on(points)  # `mask` stands for the operator's `live` (local's: all true)
+        local = fn.on(points, mask)  # this device's points; the padding is not live
         total = (lambda v: jax.lax.psum(v, DEVICES)) if n_dev > 1 else (lambda v: v)
 
         def block(k, x):
             i = order[k]
             r = signal[i] - total(local.view(x, i))  # inside shard_map: views do not split
-            g = jnp.where(mask, local.view_adjoint(r, i), 0)
+            g = local.view_adjoint(r, i)  # zero where not live
             q = total(local.view(g, i))
             gg = total(jnp.vdot(g, g).real)
             qq = jnp.vdot(q, q).real
