@@ -58,6 +58,9 @@ class FitResult:
     - `trained`: for RIFT trained at a finer ``train_granularity``, the field on that grid
       where it was trained last (zero elsewhere): what `predict` synthesises from. None
       otherwise.
+    - `points`: for ``method="points"``, the `PointScatterers` found (in the units of
+      `scene`; None if none was): what `predict` synthesises from. `scene` is them spread
+      onto the inverse grid (`PointScatterers.resample`), for the image metrics.
     """
 
     scene: Scene
@@ -72,6 +75,7 @@ class FitResult:
     field: Field | None = None
     support: np.ndarray | None = None
     trained: Scene | None = None
+    points: PointScatterers | None = None
 
     @property
     def n_points(self) -> int:
@@ -86,13 +90,19 @@ class FitResult:
     def predict(self, viewpoints: Viewpoints) -> RadarData:
         """The reconstruction's signals at ``viewpoints``, normalised like `synthesize`
         (max |S| = 1). For RIFT these are the INR's signals: the GRT of its rendering on the
-        points it was trained on (`scene`, or `trained` when it was trained finer)."""
+        points it was trained on (`scene`, or `trained` when it was trained finer); for
+        point scatterers, theirs from their exact positions."""
+        if self.points is not None:
+            return synthesize(self.points, viewpoints, self.radar)
         scene = self.scene if self.trained is None else self.trained
         return synthesize(scene, viewpoints, self.radar)
 
     def render(self, granularity: float, extent: float | None = None) -> Scene:
         """The INR evaluated on another grid (``±extent``, default the scene's, at
-        ``granularity``): the field is continuous. Only for RIFT results."""
+        ``granularity``): the field is continuous. For point scatterers, they are spread
+        onto that grid (`PointScatterers.resample`). Only for RIFT and point results."""
+        if self.points is not None and extent in (None, self.points.extent):
+            return self.points.resample(granularity)
         if self.field is None:
             raise ValueError(
                 f"FitResult.render: method {self.method!r} reconstructs on a grid, not a "
@@ -174,7 +184,10 @@ def fit(
       "Which method"), ``"kaczmarz"`` (the paper's baseline), ``"lsmr"`` (lineax),
       ``"gauss-newton"`` (optimistix; ``damped=True`` for Levenberg-Marquardt), or RIFT:
       ``"rift-n"`` / ``"rift-s"`` (an INR trained with optax; see `rift_jax.solvers.rift`
-      and `Recipe`).
+      and `Recipe`), or ``"points"``: point scatterers at continuous positions, on no
+      grid (`rift_jax.solvers.point_scatterers`; for scenes of a few dozen isolated
+      scatterers, which no grid holds; ``support`` does not apply, and with ``snr_db``
+      the noise level sets when it stops).
     - `granularity`, `extent`: the inverse grid (metres).
     - `snr_db`: noise added to synthesised signals (Scene input only).
     - `support`: which grid points may be non-zero. ``"auto"`` (the default, for every
@@ -244,6 +257,11 @@ def fit(
         scene_or_signal, viewpoints, radar, extent, granularity, snr_db, seed
     )
     grid = Scene.empty(extent, granularity)
+    if chosen.scatterers:
+        return _fit_scatterers(
+            method, signal, scale, viewpoints, radar, grid, snr_db, support, monitor,
+            time_limit, progress, options,
+        )  # fmt: skip
     start = time.perf_counter()  # the support check counts in the reconstruction's time
     points = grid.points()
     operator = grt_operator(radar, viewpoints, points)
@@ -369,6 +387,43 @@ def fit(
     except Diverged as error:
         error.result = result(error.solution)
         raise
+
+
+def _fit_scatterers(
+    method, signal, scale, viewpoints, radar, grid, snr_db, support, monitor, time_limit,
+    progress, options,
+) -> FitResult:  # fmt: skip
+    """`fit` for a method that finds point scatterers (`Method.scatterers`): no grid, no
+    operator, no support; the noise level follows from ``snr_db`` when it is known."""
+    if not (support is None or (isinstance(support, str) and support == "auto")):
+        raise ValueError(
+            f"fit: method {method!r} places scatterers anywhere in the box; it takes no "
+            "`support` (leave it out)."
+        )
+    if monitor is not None or time_limit is not None:
+        raise ValueError(f"fit: method {method!r} takes no `monitor` or `time_limit`.")
+    del progress  # a run is a few dozen rounds, each reported in its history
+    if snr_db is not None and "noise" not in options:  # σ per sample of the normalised data
+        power = float(np.mean(np.abs(np.asarray(signal)) ** 2))
+        ratio = 10 ** (-snr_db / 10)
+        options = {**options, "noise": float(np.sqrt(power * ratio / (1 + ratio)))}
+    start = time.perf_counter()
+    solution = METHODS[method].solve(signal, viewpoints, radar, grid.extent, **options)
+    seconds = time.perf_counter() - start
+    points = solution.field
+    scene = Scene(jnp.zeros(grid.shape, jnp.complex64), grid.extent, grid.granularity)
+    if points is not None:
+        points = PointScatterers(
+            points.points, np.asarray(points.reflectivity) * scale, points.extent
+        )
+        scene = points.resample(grid.granularity)
+    stats = dict(solution.stats)
+    if len(solution.history):
+        stats["data_residual"] = float(solution.history.residual[-1])
+    return FitResult(
+        scene, solution.history, seconds, method, options, solution.stopped, radar,
+        viewpoints, stats, points=points,
+    )  # fmt: skip
 
 
 # as many as `estimate_support` backprojects by default, and as RIFT's collapse check reads

@@ -1,5 +1,6 @@
 """Solvers on the shared GRT operator (what `rift_jax.fit` runs): least squares (Kaczmarz,
-LSMR, Gauss-Newton, FISTA) and RIFT's INR training (`rift`, configured by a `Recipe`)."""
+LSMR, Gauss-Newton, FISTA) and RIFT's INR training (`rift`, configured by a `Recipe`); and,
+on no grid, point scatterers at continuous positions (`point_scatterers`)."""
 
 from ._solvers import RECIPES as RECIPES
 from ._solvers import CollapseWarning as CollapseWarning
@@ -15,6 +16,7 @@ from ._solvers import fista as fista
 from ._solvers import gauss_newton as gauss_newton
 from ._solvers import kaczmarz as kaczmarz
 from ._solvers import lsmr as lsmr
+from ._solvers import point_scatterers as point_scatterers
 from ._solvers import rift as rift
 
 __all__ = [
@@ -23,6 +25,7 @@ __all__ = [
     "gauss_newton",
     "fista",
     "rift",
+    "point_scatterers",
     "Recipe",
     "RECIPES",
     "Solution",

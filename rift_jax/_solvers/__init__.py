@@ -1,7 +1,8 @@
 """Least-squares solvers on the shared GRT operator, one module per algorithm.
 
 Each takes the `GRTOperator` from `rift_jax.grt_operator` and the measured signal, and
-returns a `Solution` (ρ on the operator's grid and a per-iteration `History`).
+returns a `Solution` (ρ on the operator's grid and a per-iteration `History`); except
+`point_scatterers`, which places scatterers on no grid (its `Solution.field`).
 """
 
 from ._solution import Diverged as Diverged
@@ -18,4 +19,5 @@ from .inr import rift as rift
 from .kaczmarz import kaczmarz as kaczmarz
 from .linear import lsmr as lsmr
 from .nonlinear import gauss_newton as gauss_newton
+from .points import point_scatterers as point_scatterers
 from .sparse import fista as fista

@@ -16,6 +16,7 @@ from .inr import Recipe, rift
 from .kaczmarz import kaczmarz
 from .linear import lsmr
 from .nonlinear import gauss_newton
+from .points import point_scatterers
 from .sparse import fista
 
 
@@ -28,12 +29,16 @@ class Method:
     - `seeded`: it takes a ``seed`` (fit passes its own).
     - `inr`: it trains a `Field` (RIFT): fit passes its grid's ``extent``, turns
       ``train_granularity`` into ``fine_points``, and scales an ``init`` field.
+    - `scatterers`: it finds point scatterers at continuous positions, on no grid: fit
+      calls ``solve(signal, viewpoints, radar, extent, **options)`` (no operator, no
+      support) and renders the points on the inverse grid for the image metrics.
     """
 
     solve: Callable[..., Solution]
     options: frozenset[str]
     seeded: bool = False
     inr: bool = False
+    scatterers: bool = False
 
     def check(self, name: str, options: dict) -> None:
         """A ValueError naming any option this method does not take."""
@@ -59,4 +64,9 @@ METHODS = {
     ),
     "rift-n": Method(functools.partial(rift, model="rift-n"), _RIFT, seeded=True, inr=True),
     "rift-s": Method(functools.partial(rift, model="rift-s"), _RIFT, seeded=True, inr=True),
+    "points": Method(
+        point_scatterers,
+        frozenset({"max_points", "noise", "tol", "floor", "refine_steps"}),
+        scatterers=True,
+    ),
 }

@@ -28,9 +28,11 @@ Each round adds one point:
    energy one scatterer at x removes from r) on a λ/8 lattice around that; then Newton on c
    (its 3 × 3 Hessian by `jax.hessian`), each step clipped to λ/8.
 3. **Refine.** Every amplitude by least squares; each point re-localised by Newton against
-   the residual of the others (cyclically); points closer than λ/8 merged, points that
-   explain nothing dropped. After the last round, a joint Levenberg-Marquardt (optimistix)
-   over all positions and amplitudes.
+   the residual of the others (cyclically); points closer than λ/2 (which no aperture
+   resolves) merged, points that explain nothing dropped. After the last round, each point
+   is searched for again around itself against the residual of the others (a lattice, as
+   in step 2), then a joint Levenberg-Marquardt (optimistix) refines every position and
+   amplitude.
 4. **Stop** when the best new point would remove less energy than noise could (a
    CFAR-style threshold from the noise level, when known), or less than ``floor`` times
    the data's energy, or the residual is below ``tol``, or at ``max_points``.
@@ -54,30 +56,41 @@ from .._synthesis import PointScatterers
 from .._validation import check_positive, check_positive_int
 from ._solution import History, Outcome, Solution, Stop
 
-_CANDIDATES = 4  # cells localised per round: the one whose point removes most energy is kept
+_CANDIDATES = 3  # cells localised per round: the one whose point removes most energy is kept
 _COARSE_CELLS = 48  # lattice cells per axis of the box at the first level (at most)
 _BEAM = 2000  # cells kept at each level of the detection's coarse-to-fine search
 _QUANTILE = 0.2  # the detection score's quantile over the views (`_read`)
 _P_FALSE_ALARM = 1e-2  # the noise threshold's false-alarm rate over the whole box
 
 
+class Law(NamedTuple):
+    """What the kernels need to know statically: the ``spreading`` law ("paper",
+    "radar-equation" or "far-field"), and whether the wavenumbers are uniform (a
+    ``ladder``: e^{j k_f r} = e^{j k_0 r} (e^{j Δk r})^f, two exponentials per distance
+    instead of one per frequency)."""
+
+    spreading: str
+    ladder: bool
+
+
 class Geometry(NamedTuple):
     """A dataset's antennas and wavenumbers, host float64: ``tx`` (V, M, 3), ``rx``
-    (V, N, 3), ``k`` (F,) = 2πf/c0, and the spreading ``law`` ("paper", "radar-equation" or
-    "far-field")."""
+    (V, N, 3), ``k`` (F,) = 2πf/c0, and the kernels' `Law`."""
 
     tx: np.ndarray
     rx: np.ndarray
     k: np.ndarray
-    law: str
+    law: Law
 
     @classmethod
     def of(cls, radar: Radar, viewpoints: Viewpoints) -> Geometry:
         pairs = [antennas_at(radar, *pose) for pose in zip(*viewpoints.poses(radar), strict=True)]
         tx = np.stack([np.asarray(t, np.float64) for t, _ in pairs])
         rx = np.stack([np.asarray(r, np.float64) for _, r in pairs])
-        law = radar.spreading if radar.near_field else "far-field"
-        return cls(tx, rx, 2 * np.pi * radar.frequencies / C0, law)
+        k = 2 * np.pi * radar.frequencies / C0
+        steps = np.diff(k)
+        ladder = bool(len(k) > 1 and np.allclose(steps, steps[0], rtol=1e-12, atol=0))
+        return cls(tx, rx, k, Law(radar.spreading if radar.near_field else "far-field", ladder))
 
     @property
     def wavelength(self) -> float:
@@ -101,67 +114,104 @@ def _sides(x, tx, rx):
     return jnp.sqrt(jnp.sum((tx - x) ** 2, -1)), jnp.sqrt(jnp.sum((rx - x) ** 2, -1))
 
 
-def _amplitude(r_t, r_r, law: str):
+def _amplitude(r_t, r_r, law: Law):
     """The GRT's spreading factor for every pair, (V, M, N)."""
     r_t, r_r = r_t[:, :, None], r_r[:, None, :]
-    if law == "paper":
+    if law.spreading == "paper":
         return 1.0 / (r_t + r_r) ** 2
-    if law == "radar-equation":
+    if law.spreading == "radar-equation":
         return 1.0 / (r_t * r_r)
     return jnp.ones(jnp.broadcast_shapes(r_t.shape, r_r.shape))
 
 
-def atom(x, tx, rx, k, law: str) -> Complex[Array, "v f m n"]:
+def _phasors(k, r, law: Law, sign: float = 1.0):
+    """e^{±j k_f r} for each distance r (V, A): (V, F, A). On a uniform grid by the
+    ladder (`Law`): the powers of e^{j Δk r} by a running product, whose rounding (~F·1e-16)
+    is far below what float64 phases carry anyway."""
+    if not law.ladder:
+        return jnp.exp(sign * 1j * k[None, :, None] * r[:, None, :])
+    base = jnp.exp(sign * 1j * k[0] * r)
+    step = jnp.exp(sign * 1j * (k[1] - k[0]) * r)
+    powers = jnp.concatenate(
+        [
+            jnp.ones_like(step)[:, None],
+            jnp.broadcast_to(step[:, None], (r.shape[0], k.shape[0] - 1, r.shape[1])),
+        ],
+        axis=1,
+    )
+    return base[:, None] * jnp.cumprod(powers, axis=1)
+
+
+def atom(x, tx, rx, k, law: Law) -> Complex[Array, "v f m n"]:
     """g(x): the signals of a unit scatterer at ``x`` (float64 (3,)), complex128."""
     r_t, r_r = _sides(x, tx, rx)
-    e_t = jnp.exp(1j * k[None, :, None] * r_t[:, None, :])  # (V, F, M)
-    e_r = jnp.exp(1j * k[None, :, None] * r_r[:, None, :])  # (V, F, N)
+    e_t, e_r = _phasors(k, r_t, law), _phasors(k, r_r, law)  # (V, F, M), (V, F, N)
     return _amplitude(r_t, r_r, law)[:, None] * e_t[..., :, None] * e_r[..., None, :]
 
 
-def signals(points, amplitudes, tx, rx, k, law: str) -> Complex[Array, "v f m n"]:
+def signals(points, amplitudes, tx, rx, k, law: Law) -> Complex[Array, "v f m n"]:
     """Σ_k a_k g(x_k): the signals of point scatterers (float64 positions (K, 3))."""
     g = jax.vmap(atom, (0, None, None, None, None))(points, tx, rx, k, law)
     return jnp.tensordot(amplitudes, g, 1)
 
 
-def _projection(x, r, tx, rx, k, law: str):
+def _projection(x, r, tx, rx, k, law: Law):
     """(⟨g(x), r⟩, ‖g(x)‖²) without forming g: the pairs' phasors are separable."""
     r_t, r_r = _sides(x, tx, rx)
-    e_t = jnp.exp(-1j * k[None, :, None] * r_t[:, None, :])
-    e_r = jnp.exp(-1j * k[None, :, None] * r_r[:, None, :])
+    e_t, e_r = _phasors(k, r_t, law, -1.0), _phasors(k, r_r, law, -1.0)
     amp = _amplitude(r_t, r_r, law)
     received = jnp.sum(r * amp[:, None] * e_r[:, :, None, :], axis=-1)  # (V, F, M)
     return jnp.sum(received * e_t), k.shape[0] * jnp.sum(amp**2)
 
 
-def coherent(x, r, tx, rx, k, law: str) -> Float[Array, ""]:
+def coherent(x, r, tx, rx, k, law: Law) -> Float[Array, ""]:
     """c(x) = |⟨g(x), r⟩|²/‖g(x)‖²: the energy that one scatterer at ``x`` removes from r."""
     inner, norm = _projection(x, r, tx, rx, k, law)
     return jnp.abs(inner) ** 2 / norm
 
 
-def _pairs(x, r, tx, rx, k) -> Float[Array, ""]:
+def _pairs(x, r, tx, rx, k, law: Law) -> Float[Array, ""]:
     """Σ_{v,m,n} |Σ_f r e^{−j k_f (r_t + r_r)}|² at ``x``: coherent over frequencies only, each
     pair at its own range (smooth on the range resolution, not on the wavelength)."""
     r_t, r_r = _sides(x, tx, rx)
-    e_t = jnp.exp(-1j * k[None, :, None] * r_t[:, None, :])
-    e_r = jnp.exp(-1j * k[None, :, None] * r_r[:, None, :])
+    e_t, e_r = _phasors(k, r_t, law, -1.0), _phasors(k, r_r, law, -1.0)
     return jnp.sum(jnp.abs(jnp.sum(r * e_r[:, :, None, :] * e_t[..., None], axis=1)) ** 2)
 
 
-def _score(kind: str, x, r, tx, rx, k, law: str):
-    return coherent(x, r, tx, rx, k, law) if kind == "coherent" else _pairs(x, r, tx, rx, k)
+def _score(kind: str, x, r, tx, rx, k, law: Law):
+    return coherent(x, r, tx, rx, k, law) if kind == "coherent" else _pairs(x, r, tx, rx, k, law)
 
 
 @functools.partial(jax.jit, static_argnames=("kind", "law"))
-def _on_lattice(kind: str, points, r, tx, rx, k, law: str):
-    """`_score` ``kind`` ("coherent" or "pairs") at each of ``points``."""
-    return jax.lax.map(lambda x: _score(kind, x, r, tx, rx, k, law), points, batch_size=64)
+def _on_lattice(kind: str, points, r, tx, rx, k, law: Law):
+    """`_score` ``kind`` ("coherent" or "pairs") at each of ``points``. The coherent score
+    takes the amplitude as 1/(4 r_t r_r) here (exact to ~1e-5 for antennas a few centimetres
+    apart, `rift_jax.grt`), which makes it a batched matrix product: the lattice only picks
+    where Newton starts, and Newton uses the exact score."""
+    if kind == "pairs":
+        return jax.lax.map(lambda x: _pairs(x, r, tx, rx, k, law), points, batch_size=16)
+
+    def factors(x):
+        r_t, r_r = _sides(x, tx, rx)
+        e_t, e_r = _phasors(k, r_t, law, -1.0), _phasors(k, r_r, law, -1.0)
+        if law.spreading != "far-field":
+            e_t, e_r = e_t / (2 * r_t[:, None]), e_r / (2 * r_r[:, None])
+        amp = _amplitude(r_t, r_r, law)
+        return e_t, e_r, k.shape[0] * jnp.sum(amp**2)
+
+    def batch(points):
+        e_t, e_r, norm = jax.vmap(factors)(points)
+        received = jnp.einsum("vfmn,bvfn->bvfm", r, e_r)
+        return jnp.abs(jnp.sum(received * e_t, axis=(1, 2, 3))) ** 2 / norm
+
+    size = 32
+    pad = -points.shape[0] % size
+    padded = jnp.concatenate([points, jnp.broadcast_to(points[:1], (pad, 3))])
+    return jax.lax.map(batch, padded.reshape(-1, size, 3)).reshape(-1)[: points.shape[0]]
 
 
 @functools.partial(jax.jit, static_argnames=("kind", "law", "steps"))
-def _newton(kind: str, x, r, tx, rx, k, step_limit, law: str, steps: int = 16):
+def _newton(kind: str, x, r, tx, rx, k, step_limit, law: Law, steps: int = 16):
     """Newton ascent of `_score` ``kind`` from ``x``: ``steps`` steps, each at most
     ``step_limit`` metres (uphill along the gradient where the Hessian is not negative
     definite). A step that does not raise the score is refused, and the limit quartered."""
@@ -234,24 +284,39 @@ def _filtered(tables: _Tables, cell: float) -> _Tables:
     return tables._replace(energy=energy)
 
 
+def _bucketed(points: np.ndarray) -> np.ndarray:
+    """``points`` padded (with copies of the first) to the next power of two: lattices
+    clipped to the box come in many sizes, and each size would compile its programs."""
+    size = 1 << max(len(points) - 1, 1).bit_length()
+    return np.concatenate([points, np.repeat(points[:1], size - len(points), 0)])
+
+
 def _read(tables: _Tables, points: np.ndarray) -> np.ndarray:
     """The detection score at ``points`` (L, 3): a low quantile (`_QUANTILE`) over the
     views of Q_v(R_v(x)), each view's table divided by its mean. A scatterer at x shows in
     every view's profile; elsewhere a view reads energy only where some scatterer's range
     (or its alias, every c/Δf of bistatic range) happens to fall. A sum over the views
     cannot tell the two apart once the scatterers fill the profiles; a low quantile can."""
-    n = tables.energy.shape[1]
     energy = tables.energy / np.maximum(tables.energy.mean(1, keepdims=True), 1e-300)
-    values = np.empty((len(points), len(tables.start)))
-    for v in range(len(tables.start)):
-        bistatic = np.linalg.norm(points - tables.centre_tx[v], axis=1) + np.linalg.norm(
-            points - tables.centre_rx[v], axis=1
-        )
-        position = np.clip((bistatic - tables.start[v]) / tables.step, 0, n - 1.000001)
-        low = position.astype(np.int64)
-        frac = position - low
-        values[:, v] = (1 - frac) * energy[v, low] + frac * energy[v, low + 1]
-    return np.quantile(values, _QUANTILE, axis=1)
+    with jax.enable_x64(True):
+        return np.asarray(_read_jit(
+            jnp.asarray(_bucketed(points)), jnp.asarray(energy), jnp.asarray(tables.start),
+            tables.step, jnp.asarray(tables.centre_tx), jnp.asarray(tables.centre_rx),
+        ))[: len(points)]  # fmt: skip
+
+
+@jax.jit
+def _read_jit(points, energy, start, step, centre_tx, centre_rx):
+    bistatic = jnp.linalg.norm(points[:, None] - centre_tx, axis=-1) + jnp.linalg.norm(
+        points[:, None] - centre_rx, axis=-1
+    )  # (L, V)
+    n = energy.shape[1]
+    position = jnp.clip((bistatic - start) / step, 0, n - 1.000001)
+    low = position.astype(jnp.int32)
+    frac = position - low
+    views = jnp.arange(energy.shape[0])
+    values = (1 - frac) * energy[views, low] + frac * energy[views, low + 1]
+    return jnp.quantile(values, _QUANTILE, axis=1)
 
 
 def _children(cells: np.ndarray, size: float, extent: float) -> np.ndarray:
@@ -327,7 +392,7 @@ def _detect(residual, geometry: Geometry, arrays, extent: float, search: _Search
             ("pairs", search.pairs, search.pairs, search.pairs / 2),
             ("coherent", search.pairs / 2, search.coherent, search.coherent),
         ):
-            around = jnp.asarray(_lattice(np.asarray(x), radius, spacing, extent))
+            around = jnp.asarray(_bucketed(_lattice(np.asarray(x), radius, spacing, extent)))
             scores = _on_lattice(kind, around, residual, tx, rx, k, geometry.law)
             x = _newton(kind, around[jnp.argmax(scores)], residual, tx, rx, k, limit, geometry.law)
         gain = float(_on_lattice("coherent", x[None], residual, tx, rx, k, geometry.law)[0])
@@ -336,31 +401,44 @@ def _detect(residual, geometry: Geometry, arrays, extent: float, search: _Search
     return best, best_gain
 
 
+# The scatterers found so far live in arrays of a fixed capacity (``max_points``), with a
+# mask: every program below then compiles once per run, not once per round.
+
+
 @functools.partial(jax.jit, static_argnames="law")
-def _amplitudes(points, y, tx, rx, k, law: str):
-    """Least-squares amplitudes of point scatterers at ``points`` (K, 3) for data ``y``."""
+def _amplitudes(points, live, y, tx, rx, k, law: Law):
+    """Least-squares amplitudes of the ``live`` point scatterers at ``points`` (P, 3) for
+    data ``y`` (0 for the others: their columns are zero, and the least-squares solution
+    is the one of least norm)."""
     g = jax.vmap(atom, (0, None, None, None, None))(points, tx, rx, k, law)
-    g = g.reshape(points.shape[0], -1)
-    return jnp.linalg.lstsq(g.T, y.reshape(-1))[0]
+    g = jnp.where(live[:, None], g.reshape(points.shape[0], -1), 0)
+    return jnp.where(live, jnp.linalg.lstsq(g.T, y.reshape(-1))[0], 0)
 
 
 @functools.partial(jax.jit, static_argnames="law")
-def _cyclic(points, amplitudes, y, tx, rx, k, step_limit, law: str):
-    """Each point re-localised by Newton against the residual of the others, in turn, and
-    its amplitude re-fitted (one cycle)."""
+def _model(points, amplitudes, tx, rx, k, law: Law):
+    return signals(points, amplitudes, tx, rx, k, law)
 
-    def one(carry, j):
-        points, amplitudes = carry
+
+@functools.partial(jax.jit, static_argnames="law")
+def _cyclic(points, amplitudes, live, y, tx, rx, k, step_limit, law: Law):
+    """Each live point re-localised by Newton against the residual of the others, in turn,
+    and its amplitude re-fitted (one cycle)."""
+
+    def refine(points, amplitudes, j):
         others = y - signals(points, amplitudes.at[j].set(0), tx, rx, k, law)
         x = _newton("coherent", points[j], others, tx, rx, k, step_limit, law)
         inner, norm = _projection(x, others, tx, rx, k, law)
-        return (points.at[j].set(x), amplitudes.at[j].set(inner / norm)), None
+        return points.at[j].set(x), amplitudes.at[j].set(inner / norm)
+
+    def one(carry, j):
+        return jax.lax.cond(live[j], refine, lambda p, a, _: (p, a), *carry, j), None
 
     return jax.lax.scan(one, (points, amplitudes), jnp.arange(points.shape[0]))[0]
 
 
 @functools.partial(jax.jit, static_argnames="law")
-def _energies(points, amplitudes, tx, rx, k, law: str):
+def _energies(points, amplitudes, tx, rx, k, law: Law):
     """|a_k|² ‖g(x_k)‖²: the energy each point contributes on its own."""
 
     def norm(x):
@@ -370,19 +448,19 @@ def _energies(points, amplitudes, tx, rx, k, law: str):
     return jnp.abs(amplitudes) ** 2 * jax.vmap(norm)(points)
 
 
-def _prune(points, amplitudes, geometry: Geometry, arrays, threshold: float):
-    """The points, less those closer than λ/8 to a stronger one (merged into it: the
-    amplitudes are re-fitted afterwards) and those that contribute less than ``threshold``
-    of energy."""
+def _prune(points, amplitudes, live, geometry: Geometry, arrays, threshold: float):
+    """The live mask, less the points closer than λ/2 to a stronger one (merged into it:
+    the amplitudes are re-fitted afterwards) and those that contribute less than
+    ``threshold`` of energy."""
     energy = np.asarray(_energies(jnp.asarray(points), jnp.asarray(amplitudes), *arrays,
                                   geometry.law))  # fmt: skip
-    keep: list[int] = []
+    keep = np.zeros_like(live)
     for i in np.argsort(energy)[::-1]:
-        close = any(np.linalg.norm(points[i] - points[j]) < geometry.wavelength / 8 for j in keep)
-        if not close and energy[i] >= threshold:
-            keep.append(i)
-    keep.sort()
-    return points[keep], amplitudes[keep]
+        if not live[i] or energy[i] < threshold:
+            continue
+        close = np.linalg.norm(points[keep] - points[i], axis=1) < geometry.wavelength / 2
+        keep[i] = not np.any(close)
+    return keep
 
 
 def point_scatterers(
@@ -440,8 +518,9 @@ def point_scatterers(
         cell = (geometry.wavelength / 4) ** 2 * min(geometry.range_resolution, 2 * extent)
         cells = (2 * extent) ** 3 / cell
         threshold = max(threshold, noise**2 * math.log(cells / _P_FALSE_ALARM))
-    points = np.zeros((0, 3))
-    amplitudes = np.zeros(0, np.complex128)
+    points = np.zeros((max_points, 3))
+    amplitudes = np.zeros(max_points, np.complex128)
+    live = np.zeros(max_points, bool)
     residuals, seconds = [], []
     outcome = Outcome.BUDGET
     with jax.enable_x64(True):
@@ -456,27 +535,38 @@ def point_scatterers(
             if gain < threshold:
                 outcome = Outcome.CONVERGED
                 break
-            points = np.concatenate([points, x[None]])
-            amplitudes = np.asarray(_amplitudes(jnp.asarray(points), y, *arrays, geometry.law))
+            slot = int(np.flatnonzero(~live)[0])
+            points[slot], live[slot] = x, True
+            amplitudes = _amplitudes(jnp.asarray(points), jnp.asarray(live), y, *arrays,
+                                     geometry.law)  # fmt: skip
             moved, amplitudes = _cyclic(
-                jnp.asarray(points), jnp.asarray(amplitudes), y, *arrays, search.coherent,
-                geometry.law,
+                jnp.asarray(points), amplitudes, jnp.asarray(live), y, *arrays,
+                search.coherent, geometry.law,
             )  # fmt: skip
             points = np.clip(np.asarray(moved), -extent, extent)
-            points, amplitudes = _prune(points, np.asarray(amplitudes), geometry, arrays,
-                                        threshold)  # fmt: skip
-            amplitudes = np.asarray(_amplitudes(jnp.asarray(points), y, *arrays, geometry.law))
-            residual = y - signals(jnp.asarray(points), jnp.asarray(amplitudes), *arrays,
-                                   geometry.law)  # fmt: skip
+            before = live.sum()
+            live = _prune(points, np.asarray(amplitudes), live, geometry, arrays, threshold)
+            amplitudes = _amplitudes(jnp.asarray(points), jnp.asarray(live), y, *arrays,
+                                     geometry.law)  # fmt: skip
+            if live.sum() < before:  # merged: an earlier point was likely on a sidelobe
+                points, amplitudes = _relocalise(points, amplitudes, live, y, geometry, arrays,
+                                                 extent, search)  # fmt: skip
+            residual = y - _model(jnp.asarray(points), amplitudes, *arrays, geometry.law)
             residuals.append(float(jnp.linalg.norm(residual)) / math.sqrt(energy))
             seconds.append(time.perf_counter() - started)
+        if live.sum() > 1:  # each point looked for again around itself, the others known
+            points, amplitudes = _relocalise(points, amplitudes, live, y, geometry, arrays,
+                                             extent, search)  # fmt: skip
+        points, amplitudes = points[live], np.asarray(amplitudes)[live]
         if len(points) and refine_steps:
             points, amplitudes = _joint(points, amplitudes, y, geometry, arrays, refine_steps)
             points = np.clip(points, -extent, extent)
-            residual = y - signals(jnp.asarray(points), jnp.asarray(amplitudes), *arrays,
-                                   geometry.law)  # fmt: skip
+            residual = y - _model(jnp.asarray(points), jnp.asarray(amplitudes), *arrays,
+                                  geometry.law)  # fmt: skip
             residuals.append(float(jnp.linalg.norm(residual)) / math.sqrt(energy))
             seconds.append(time.perf_counter() - started)
+            if residuals[-1] <= tol:  # the refinement explained what the rounds had not
+                outcome = Outcome.CONVERGED
     history = History(np.asarray(residuals), np.asarray(seconds))
     scatterers = None
     if len(points):
@@ -488,25 +578,48 @@ def point_scatterers(
     )  # fmt: skip
 
 
+def _relocalise(points, amplitudes, live, y, geometry: Geometry, arrays, extent, search):
+    """Each live point searched for again on the coherent lattice around it (as `_detect`'s
+    last step) against the residual of all the others, then Newton; then every amplitude
+    re-fitted. A point placed while others were still in the residual may sit on a sidelobe
+    of its scatterer: Newton's steps cannot leave one, a lattice search can."""
+    tx, rx, k = arrays
+    points, amplitudes = points.copy(), jnp.asarray(amplitudes)
+    for j in np.flatnonzero(live):
+        others = y - _model(jnp.asarray(points), amplitudes.at[j].set(0), *arrays, geometry.law)
+        around = _lattice(points[j], search.pairs / 2, search.coherent, extent)
+        around = jnp.asarray(_bucketed(around))
+        scores = _on_lattice("coherent", around, others, tx, rx, k, geometry.law)
+        x = _newton("coherent", around[jnp.argmax(scores)], others, tx, rx, k, search.coherent,
+                    geometry.law)  # fmt: skip
+        points[j] = np.clip(np.asarray(x), -extent, extent)
+        amplitudes = _amplitudes(jnp.asarray(points), jnp.asarray(live), y, *arrays, geometry.law)
+    return points, amplitudes
+
+
+def _joint_residual(params, args):
+    """The real residual y − Σ a g(x) of `_joint`'s unknowns (module level, taking its data
+    as ``args``: optimistix then compiles once per point count)."""
+    (offsets, re, im), (origin, unit, y, tx, rx, k, law) = params, args
+    model = signals(origin + unit * offsets, re + 1j * im, tx, rx, k, law)
+    difference = (y - model).reshape(-1)
+    return jnp.concatenate([difference.real, difference.imag])
+
+
 def _joint(points, amplitudes, y, geometry: Geometry, arrays, steps: int):
     """Every position and amplitude refined together by Levenberg-Marquardt (optimistix),
-    positions as offsets in units of λ/8 (so that both kinds of unknowns are O(1))."""
-    unit = geometry.wavelength / 8
+    positions as offsets in units of λ/8 (so that both kinds of unknowns are O(1)). Kept
+    only if it lowers the residual."""
     origin = jnp.asarray(points)
-
-    def residual(params, _):
-        offsets, re, im = params
-        model = signals(origin + unit * offsets, re + 1j * im, *arrays, geometry.law)
-        difference = (y - model).reshape(-1)
-        return jnp.concatenate([difference.real, difference.imag])
-
+    args = (origin, geometry.wavelength / 8, y, *arrays, geometry.law)
     start = (jnp.zeros_like(origin), jnp.asarray(amplitudes.real), jnp.asarray(amplitudes.imag))
     solver = optx.LevenbergMarquardt(rtol=1e-12, atol=1e-12)
-    solution = optx.least_squares(residual, solver, start, max_steps=steps, throw=False)
-    offsets, re, im = solution.value
-    refined = np.asarray(origin + unit * offsets)
-    before = float(jnp.linalg.norm(residual(start, None)))
-    after = float(jnp.linalg.norm(residual(solution.value, None)))
-    if not after <= before:  # never worse than what the rounds reached
+    solution = optx.least_squares(
+        _joint_residual, solver, start, args, max_steps=steps, throw=False
+    )
+    before = float(jnp.linalg.norm(_joint_residual(start, args)))
+    after = float(jnp.linalg.norm(_joint_residual(solution.value, args)))
+    if not after <= before:
         return points, amplitudes
-    return refined, np.asarray(re + 1j * im)
+    offsets, re, im = solution.value
+    return np.asarray(origin + args[1] * offsets), np.asarray(re + 1j * im)

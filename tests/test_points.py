@@ -1,0 +1,108 @@
+"""Point scatterers at continuous positions (`fit(..., method="points")`): the float64
+model against the GRT, its exact position gradients, and recovery of off-grid points."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.optimize import linear_sum_assignment
+
+import rift_jax as rj
+from rift_jax._solvers import points as P
+
+
+def scatterers(count: int, extent: float, seed: int) -> rj.PointScatterers:
+    """``count`` points at random continuous positions within ±0.7·extent (off every grid),
+    at least λ apart, amplitudes within 12 dB, random phases."""
+    rng = np.random.default_rng(seed)
+    chosen: list[np.ndarray] = []
+    while len(chosen) < count:
+        x = rng.uniform(-0.7 * extent, 0.7 * extent, 3)
+        if all(np.linalg.norm(x - c) > 0.01 for c in chosen):
+            chosen.append(x)
+    amplitude = rng.uniform(0.25, 1.0, count) * np.exp(1j * rng.uniform(-np.pi, np.pi, count))
+    return rj.PointScatterers(np.array(chosen), amplitude, extent)
+
+
+def matched_errors(truth: rj.PointScatterers, found: rj.PointScatterers) -> np.ndarray:
+    """Each true point's distance to the found point it is matched with (m)."""
+    distance = np.linalg.norm(truth.points[:, None] - found.points[None], axis=-1)
+    rows, columns = linear_sum_assignment(distance)
+    return distance[rows, columns]
+
+
+def test_the_model_is_the_grt_and_its_position_gradient_is_exact(small_cube, x64):
+    """Σ a g(x) equals `synthesize` (the float32 GRT) at off-grid points, and the gradient of
+    a real functional of it in the positions equals float64 central differences."""
+    radar, _, train, _ = small_cube
+    truth = scatterers(2, 1.0, seed=1)
+    data = rj.synthesize(truth, train[:6], radar)
+    geometry = P.Geometry.of(radar, train[:6])
+    tx, rx, k = geometry.arrays()
+    points = jnp.asarray(truth.points)
+    amplitudes = jnp.asarray(np.asarray(truth.reflectivity, np.complex128)) / data.scale
+    model = P.signals(points, amplitudes, tx, rx, k, geometry.law)
+    assert np.linalg.norm(model - data.signal) / np.linalg.norm(data.signal) < 1e-5
+
+    weights = jnp.asarray(np.random.default_rng(0).normal(size=model.shape) + 0j)
+
+    def functional(points):
+        return jnp.real(jnp.vdot(weights, P.signals(points, amplitudes, tx, rx, k, geometry.law)))
+
+    gradient = np.asarray(jax.grad(functional)(points))
+    step = 1e-7  # m: k·2·step ≈ 4e-4 rad of phase, far inside the quadratic regime
+    for i in range(2):
+        for axis in range(3):
+            shift = np.zeros((2, 3))
+            shift[i, axis] = step
+            central = (functional(points + shift) - functional(points - shift)) / (2 * step)
+            assert gradient[i, axis] == pytest.approx(float(central), rel=1e-5)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("snr_db", [None, 20.0])
+def test_finds_off_grid_points(small_cube, snr_db):
+    """Three off-grid points: every one found, no false point, positions to micrometres and
+    unseen views predicted to the noise (noise-free: to float32 rounding)."""
+    radar, _, train, test = small_cube
+    truth = scatterers(3, 1.0, seed=7)
+    result = rj.fit(
+        truth, train, radar=radar, method="points", granularity=0.5, snr_db=snr_db, seed=1,
+        max_points=6, progress=False,
+    )  # fmt: skip
+    assert result.points is not None and len(result.points.points) == 3
+    errors = matched_errors(truth, result.points)
+    metrics = result.evaluate(truth, test)
+    if snr_db is None:
+        assert errors.max() < 1e-6 and metrics["p_rmse"] < 1e-3
+        assert result.stopped.outcome is rj.solvers.Outcome.CONVERGED
+    else:
+        assert np.sqrt(np.mean(errors**2)) < 50e-6 and metrics["p_rmse"] < 0.05
+    assert metrics["m_ssim"] > 0.95  # the points spread onto the inverse grid, as the truth
+    np.testing.assert_allclose(
+        np.sort(np.abs(result.points.reflectivity)), np.sort(np.abs(truth.reflectivity)), rtol=0.05
+    )
+
+
+def test_bad_input(small_cube):
+    radar, _, train, _ = small_cube
+    truth = scatterers(1, 1.0, seed=0)
+    mask = np.ones((5, 5, 5), bool)
+    with pytest.raises(ValueError, match="takes no `support`"):
+        rj.fit(truth, train, radar=radar, method="points", granularity=0.5, support=mask)
+    with pytest.raises(ValueError, match=r"takes no option\(s\) \['epochs'\]"):
+        rj.fit(truth, train, radar=radar, method="points", granularity=0.5, epochs=3)
+    with pytest.raises(ValueError, match="`monitor`"):
+        rj.fit(truth, train, radar=radar, method="points", granularity=0.5, monitor=lambda *a: None)
+    signal = np.zeros((len(train), *radar.signal_shape), np.complex64)
+    for options, word in [
+        ({"max_points": 0}, "max_points"),
+        ({"tol": 1.5}, "tol"),
+        ({"floor": -1.0}, "floor"),
+        ({"noise": -1.0}, "noise"),
+        ({"refine_steps": 2.5}, "refine_steps"),
+    ]:
+        with pytest.raises(ValueError, match=f"`{word}`"):
+            rj.solvers.point_scatterers(signal, train, radar, 1.0, **options)
+    with pytest.raises(ValueError, match="`signal` must have shape"):
+        rj.solvers.point_scatterers(signal[:3], train, radar, 1.0)
