@@ -24,8 +24,10 @@ truth does, or none of it:
 Each truth is reconstructed on every grid of ``resolutions`` from noise-free data and at
 20 and 0 dB SNR by RIFT(N), RIFT(S), RIFT(N) trained coarse to fine (its last half of the
 steps on the grid of half the inverse granularity: `fit`'s ``train_granularity``), FISTA,
-LSMR and Kaczmarz. The training and test viewpoints are one seeded draw shared by every
-run; ``--seed`` also draws the scatterers, the INRs' starts and the noise.
+LSMR and Kaczmarz; and by point scatterers at continuous positions (``method="points"``,
+at most twice ``n_scatterers`` points, on no grid: its image metrics spread them onto the
+inverse grid, as the truth's are). The training and test viewpoints are one seeded draw
+shared by every run; ``--seed`` also draws the scatterers, the INRs' starts and the noise.
 
 Scales:
 - quick (seconds; the tests): ±2.4 m, a 0.8 m grid, 8 points and a random scene at
@@ -75,6 +77,7 @@ LABELS = {
     "fista": "FISTA",
     "lsmr": "LSMR",
     "kaczmarz": "Kaczmarz",
+    "points": "Points",
 }
 """The methods this study knows: `fit` methods, and "rift-n-fine", RIFT(N) trained coarse
 to fine (``train_granularity`` = half the inverse granularity)."""
@@ -160,6 +163,8 @@ def label(method: str, snr: float | None) -> str:
 
 def options(method: str, granularity: float, cfg: Config) -> dict:
     """`fit` options of ``method`` on the grid of ``granularity``."""
+    if method == "points":  # on no grid
+        return {"max_points": 2 * cfg.n_scatterers}
     whole = {"support": None}  # every grid point: a truth off the grid has no support
     if method.startswith("rift"):
         out = rift_options(cfg.n_train, cfg.rift_steps) | whole | {"prune": None}
@@ -316,6 +321,7 @@ def main(
         report=lambda *args: report(*args, cfg, Path(out)),
         resume=resume,
         progress=progress,
+        per_run=("methods",),  # a method added since runs alone on --resume
     )
     print(f"wrote results.md, results.json, mismatch.png and reconstructions.npz to {out}/")
     return results

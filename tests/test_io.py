@@ -301,7 +301,7 @@ def test_every_field_of_a_fit_result_has_its_place_in_the_file():
     """A field added to FitResult must be saved too (rift_jax/_io/codec.py, `_encode_result` and
     `_decode_result`), or a loaded result would silently lose it."""
     saved = {"scene", "history", "seconds", "method", "options", "stopped", "radar"}
-    saved |= {"viewpoints", "stats", "field", "support", "trained"}
+    saved |= {"viewpoints", "stats", "field", "support", "trained", "points"}
     assert {field.name for field in dataclasses.fields(rj.FitResult)} == saved
 
 

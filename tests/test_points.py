@@ -61,7 +61,7 @@ def test_the_model_is_the_grt_and_its_position_gradient_is_exact(small_cube, x64
 
 @pytest.mark.slow
 @pytest.mark.parametrize("snr_db", [None, 20.0])
-def test_finds_off_grid_points(small_cube, snr_db):
+def test_finds_off_grid_points(small_cube, snr_db, tmp_path):
     """Three off-grid points: every one found, no false point, positions to micrometres and
     unseen views predicted to the noise (noise-free: to float32 rounding)."""
     radar, _, train, test = small_cube
@@ -82,6 +82,12 @@ def test_finds_off_grid_points(small_cube, snr_db):
     np.testing.assert_allclose(
         np.sort(np.abs(result.points.reflectivity)), np.sort(np.abs(truth.reflectivity)), rtol=0.05
     )
+    # saved and loaded, the scatterers come back as they were; PLY writes them, not the grid
+    loaded = rj.load(rj.save(tmp_path / "points.h5", result))
+    np.testing.assert_array_equal(loaded.points.points, result.points.points)
+    np.testing.assert_array_equal(loaded.points.reflectivity, result.points.reflectivity)
+    ply = rj.export_ply(tmp_path / "points.ply", result, threshold=1e-3)
+    assert b"element vertex 3" in ply.read_bytes()[:400]
 
 
 def test_bad_input(small_cube):
@@ -106,3 +112,11 @@ def test_bad_input(small_cube):
             rj.solvers.point_scatterers(signal, train, radar, 1.0, **options)
     with pytest.raises(ValueError, match="`signal` must have shape"):
         rj.solvers.point_scatterers(signal[:3], train, radar, 1.0)
+
+
+def test_a_lattice_around_a_point_that_left_the_box_is_not_empty():
+    """A Newton step can leave the box near its faces (a 20-point run failed on an empty
+    lattice): the lattice around such a point is taken around its nearest point inside."""
+    lattice = P._lattice(np.array([1.2, 0.0, -1.3]), 0.01, 0.005, extent=1.0)
+    assert len(lattice) == 3 * 3 * 5 and np.all(np.abs(lattice) <= 1.0)
+    assert [1.0, 0.0, -1.0] in lattice.tolist()

@@ -189,6 +189,9 @@ def _encode_result(result: FitResult) -> tuple[dict, dict[str, np.ndarray]]:
         arrays["support"] = np.asarray(result.support)
     if result.trained is not None:
         arrays["trained/reflectivity"] = np.asarray(result.trained.reflectivity)
+    if result.points is not None:  # method="points": the scatterers themselves
+        arrays["points/points"] = np.asarray(result.points.points)
+        arrays["points/reflectivity"] = np.asarray(result.points.reflectivity)
     stop = result.stopped
     content = {
         "scene": _grid_record(result.scene),
@@ -202,6 +205,7 @@ def _encode_result(result: FitResult) -> tuple[dict, dict[str, np.ndarray]]:
         "support": result.support is not None,
         "trained": None if result.trained is None else _grid_record(result.trained),
         "field": None if result.field is None else _encode_module(result.field, "field", arrays),
+        "points": None if result.points is None else {"extent": result.points.extent},
     }
     return content, arrays
 
@@ -233,7 +237,16 @@ def _decode_result(content: dict, take: _Arrays, path: str) -> FitResult:
         field=None if get("field") is None else _decode_module(get("field"), take, path),
         support=take["support"] if get("support") else None,
         trained=None if trained is None else _scene(take["trained/reflectivity"], trained, path),
+        points=_points(content.get("points"), take, path),
     )
+
+
+def _points(record: dict | None, take: _Arrays, path: str) -> PointScatterers | None:
+    """A result's point scatterers (files written before method="points" hold none)."""
+    if record is None:
+        return None
+    extent = _get(record, "extent", path)
+    return PointScatterers(take["points/points"], take["points/reflectivity"], extent)
 
 
 # RIFT's models: the sizes that rebuild each one's skeleton, so that the stored weights

@@ -31,7 +31,8 @@ def export_ply(
     **Arguments:**
 
     - `path`: a ``.ply`` file.
-    - `scene_or_result`: a `Scene`, a `FitResult` (its `scene`), or `PointScatterers`.
+    - `scene_or_result`: a `Scene`, a `FitResult` (its `scene`; for ``method="points"``,
+      its `points`), or `PointScatterers`.
     - `threshold`: in (0, 1], relative to the brightest voxel (as `rift_jax.metrics.t_iou`).
 
     **Returns:** the path written. An all-zero scene gives a valid file with no vertices.
@@ -48,6 +49,8 @@ def export_ply(
         raise ValueError(f"{where}: `threshold` must be in (0, 1], got {threshold!r}.")
     if isinstance(scene_or_result, Scene | PointScatterers):
         source = scene_or_result
+    elif getattr(scene_or_result, "points", None) is not None:
+        source = scene_or_result.points  # a FitResult of method="points": its scatterers
     elif hasattr(scene_or_result, "scene") and isinstance(scene_or_result.scene, Scene):
         source = scene_or_result.scene  # a FitResult
     else:

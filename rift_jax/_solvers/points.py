@@ -185,17 +185,19 @@ def _score(kind: str, x, r, tx, rx, k, law: Law):
 @functools.partial(jax.jit, static_argnames=("kind", "law"))
 def _on_lattice(kind: str, points, r, tx, rx, k, law: Law):
     """`_score` ``kind`` ("coherent" or "pairs") at each of ``points``. The coherent score
-    takes the amplitude as 1/(4 r_t r_r) here (exact to ~1e-5 for antennas a few centimetres
-    apart, `rift_jax.grt`), which makes it a batched matrix product: the lattice only picks
-    where Newton starts, and Newton uses the exact score."""
+    takes the paper's amplitude 1/(r_t + r_r)² as 1/(4 r_t r_r) here (within ~1e-5 for
+    antennas a few centimetres apart, `rift_jax.grt`), which makes every law separable and
+    the score a batched matrix product: the lattice only picks where Newton starts, and
+    Newton uses the exact score."""
     if kind == "pairs":
         return jax.lax.map(lambda x: _pairs(x, r, tx, rx, k, law), points, batch_size=16)
 
     def factors(x):
         r_t, r_r = _sides(x, tx, rx)
         e_t, e_r = _phasors(k, r_t, law, -1.0), _phasors(k, r_r, law, -1.0)
-        if law.spreading != "far-field":
-            e_t, e_r = e_t / (2 * r_t[:, None]), e_r / (2 * r_r[:, None])
+        if law.spreading != "far-field":  # 1/(r_t r_r), and 1/4 of it for the paper's law
+            half = 0.5 if law.spreading == "paper" else 1.0
+            e_t, e_r = e_t * (half / r_t[:, None]), e_r * (half / r_r[:, None])
         amp = _amplitude(r_t, r_r, law)
         return e_t, e_r, k.shape[0] * jnp.sum(amp**2)
 
@@ -329,12 +331,13 @@ def _children(cells: np.ndarray, size: float, extent: float) -> np.ndarray:
 
 
 def _lattice(centre: np.ndarray, half_width: float, spacing: float, extent: float) -> np.ndarray:
-    """The points of a cubic lattice of ``spacing`` within ``half_width`` of ``centre``,
-    inside the box ±``extent``."""
+    """The points of a cubic lattice of ``spacing`` within ``half_width`` of ``centre``
+    (moved into the box first: a Newton step may leave it), inside the box ±``extent``:
+    never empty, the centre is one of them."""
     n = max(1, int(round(half_width / spacing)))
     axis = spacing * np.arange(-n, n + 1)
     grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-    points = centre + grid
+    points = np.clip(centre, -extent, extent) + grid
     return points[np.all(np.abs(points) <= extent, axis=1)]
 
 
