@@ -101,8 +101,8 @@ class FitResult:
         """The INR evaluated on another grid (``±extent``, default the scene's, at
         ``granularity``): the field is continuous. For point scatterers, they are spread
         onto that grid (`PointScatterers.resample`). Only for RIFT and point results."""
-        if self.points is not None and extent in (None, self.points.extent):
-            return self.points.resample(granularity)
+        if self.method == "points":
+            return self._render_points(granularity, extent)
         if self.field is None:
             raise ValueError(
                 f"FitResult.render: method {self.method!r} reconstructs on a grid, not a "
@@ -116,6 +116,18 @@ class FitResult:
         return Scene(
             jnp.asarray(rho.reshape(grid.shape), jnp.complex64), grid.extent, grid.granularity
         )
+
+    def _render_points(self, granularity: float, extent: float | None) -> Scene:
+        extent = self.scene.extent if extent is None else extent
+        if self.points is None:  # none found: an empty box
+            return Scene.empty(extent, granularity)
+        if np.abs(self.points.points).max() > extent:
+            raise ValueError(
+                f"FitResult.render: `extent` ({extent} m) leaves out some of the point "
+                "scatterers found; give one that holds them (or leave it out)."
+            )
+        moved = PointScatterers(self.points.points, self.points.reflectivity, extent)
+        return moved.resample(granularity)
 
     def evaluate(
         self, truth: Scene | PointScatterers, test_viewpoints: Viewpoints, *, threshold: float = 0.2
@@ -186,8 +198,9 @@ def fit(
       ``"rift-n"`` / ``"rift-s"`` (an INR trained with optax; see `rift_jax.solvers.rift`
       and `Recipe`), or ``"points"``: point scatterers at continuous positions, on no
       grid (`rift_jax.solvers.point_scatterers`; for scenes of a few dozen isolated
-      scatterers, which no grid holds; ``support`` does not apply, and with ``snr_db``
-      the noise level sets when it stops).
+      scatterers, which no grid holds; ``support`` does not apply, the checks below do not
+      run, and the noise level, from ``snr_db``, a `RadarData`'s own, or ``noise=`` in the
+      signal's units, sets when it stops).
     - `granularity`, `extent`: the inverse grid (metres).
     - `snr_db`: noise added to synthesised signals (Scene input only).
     - `support`: which grid points may be non-zero. ``"auto"`` (the default, for every
@@ -258,6 +271,8 @@ def fit(
     )
     grid = Scene.empty(extent, granularity)
     if chosen.scatterers:
+        if isinstance(scene_or_signal, RadarData):  # measured data that say their noise
+            snr_db = scene_or_signal.snr_db
         return _fit_scatterers(
             method, signal, scale, viewpoints, radar, grid, snr_db, support, monitor,
             time_limit, progress, options,
@@ -403,12 +418,15 @@ def _fit_scatterers(
     if monitor is not None or time_limit is not None:
         raise ValueError(f"fit: method {method!r} takes no `monitor` or `time_limit`.")
     del progress  # a run is a few dozen rounds, each reported in its history
-    if snr_db is not None and "noise" not in options:  # σ per sample of the normalised data
+    solver_options = dict(options)
+    if solver_options.get("noise") is not None:  # given in the signal's units: the solver
+        solver_options["noise"] = solver_options["noise"] / scale  # sees it normalised
+    elif snr_db is not None:  # σ per sample of the normalised data, as `synthesize` adds it
         power = float(np.mean(np.abs(np.asarray(signal)) ** 2))
         ratio = 10 ** (-snr_db / 10)
-        options = {**options, "noise": float(np.sqrt(power * ratio / (1 + ratio)))}
+        solver_options["noise"] = float(np.sqrt(power * ratio / (1 + ratio)))
     start = time.perf_counter()
-    solution = METHODS[method].solve(signal, viewpoints, radar, grid.extent, **options)
+    solution = METHODS[method].solve(signal, viewpoints, radar, grid.extent, **solver_options)
     seconds = time.perf_counter() - start
     points = solution.field
     scene = Scene(jnp.zeros(grid.shape, jnp.complex64), grid.extent, grid.granularity)
@@ -417,9 +435,8 @@ def _fit_scatterers(
             points.points, np.asarray(points.reflectivity) * scale, points.extent
         )
         scene = points.resample(grid.granularity)
-    stats = dict(solution.stats)
-    if len(solution.history):
-        stats["data_residual"] = float(solution.history.residual[-1])
+    stats = dict(solution.stats)  # no points: the residual is the data's own, 1
+    stats["data_residual"] = float(solution.history.residual[-1]) if len(solution.history) else 1.0
     return FitResult(
         scene, solution.history, seconds, method, options, solution.stopped, radar,
         viewpoints, stats, points=points,

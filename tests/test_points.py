@@ -13,7 +13,7 @@ from rift_jax._solvers import points as P
 
 def scatterers(count: int, extent: float, seed: int) -> rj.PointScatterers:
     """``count`` points at random continuous positions within ±0.7·extent (off every grid),
-    at least λ apart, amplitudes within 12 dB, random phases."""
+    at least 1 cm (~3λ) apart, amplitudes within 12 dB, random phases."""
     rng = np.random.default_rng(seed)
     chosen: list[np.ndarray] = []
     while len(chosen) < count:
@@ -120,3 +120,27 @@ def test_a_lattice_around_a_point_that_left_the_box_is_not_empty():
     lattice = P._lattice(np.array([1.2, 0.0, -1.3]), 0.01, 0.005, extent=1.0)
     assert len(lattice) == 3 * 3 * 5 and np.all(np.abs(lattice) <= 1.0)
     assert [1.0, 0.0, -1.0] in lattice.tolist()
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".h5"])
+def test_a_points_result_is_saved_rendered_and_written_as_its_points(small_cube, tmp_path, suffix):
+    """The scatterers travel with their FitResult (not only their rendering on the grid),
+    `render` spreads them onto any grid that holds them, and PLY writes the points."""
+    radar, _, train, _ = small_cube
+    found = scatterers(3, 1.0, seed=2)
+    history = rj.solvers.History(np.array([0.5, 0.01]), np.array([1.0, 2.0]))
+    stopped = rj.solvers.Stop(rj.solvers.Outcome.CONVERGED, 2)
+    result = rj.FitResult(
+        found.resample(0.5), history, 2.0, "points", {}, stopped, radar, train, {}, points=found
+    )
+    loaded = rj.load(rj.save(tmp_path / f"result{suffix}", result))
+    np.testing.assert_array_equal(loaded.points.points, found.points)
+    np.testing.assert_array_equal(loaded.points.reflectivity, found.reflectivity)
+    wider = result.render(0.25, extent=1.5)
+    total = complex(np.sum(np.asarray(found.reflectivity)))
+    assert wider.extent == 1.5
+    assert complex(np.sum(np.asarray(wider.reflectivity))) == pytest.approx(total, rel=1e-5)
+    with pytest.raises(ValueError, match="`extent`"):
+        result.render(0.1, extent=0.2)
+    ply = rj.export_ply(tmp_path / "points.ply", result, threshold=1e-3)
+    assert b"element vertex 3" in ply.read_bytes()[:400]

@@ -83,7 +83,8 @@ class Solution:
       solvers return their best iterate, the one with the lowest data residual, and
       ``stats["best"]`` is its index in ``history`` (None: none beat the start, which is
       returned).
-    - `field`: the INR solver's continuous scene (a `rift_jax.Field`); None for the grid
+    - `field`: the continuous scene, where there is one: the INR solver's `rift_jax.Field`,
+      or the `rift_jax.PointScatterers` that `point_scatterers` finds; None for the grid
       solvers.
     """
 

@@ -182,11 +182,15 @@ def _score(kind: str, x, r, tx, rx, k, law: Law):
     return coherent(x, r, tx, rx, k, law) if kind == "coherent" else _pairs(x, r, tx, rx, k, law)
 
 
+_gain = jax.jit(coherent, static_argnames="law")
+
+
 @functools.partial(jax.jit, static_argnames=("kind", "law"))
 def _on_lattice(kind: str, points, r, tx, rx, k, law: Law):
     """`_score` ``kind`` ("coherent" or "pairs") at each of ``points``. The coherent score
-    takes the paper's amplitude 1/(r_t + r_r)² as 1/(4 r_t r_r) here (within ~1e-5 for
-    antennas a few centimetres apart, `rift_jax.grt`), which makes every law separable and
+    takes the paper's amplitude 1/(r_t + r_r)² as 1/(4 r_t r_r) here (relative error
+    (r_t − r_r)²/(4 r_t r_r): ~1e-5 for antennas 3 cm apart at 10 m, `rift_jax.grt`;
+    larger for TX and RX far apart), which makes every law separable and
     the score a batched matrix product: the lattice only picks where Newton starts, and
     Newton uses the exact score."""
     if kind == "pairs":
@@ -381,13 +385,13 @@ def _detect(residual, geometry: Geometry, arrays, extent: float, search: _Search
     size = search.coarse
     cells = _lattice(np.zeros(3), extent, size, extent)
     while True:
-        scores = _read(_filtered(tables, size), cells)
+        ranked = _read(_filtered(tables, size), cells)
         if size <= search.finest * 1.0001:
             break
-        cells = _children(cells[np.argsort(scores)[::-1][:_BEAM]], size, extent)
+        cells = _children(cells[np.argsort(ranked)[::-1][:_BEAM]], size, extent)
         size /= 3
     best, best_gain = None, -1.0
-    for cell in _local_maxima(cells, scores, _CANDIDATES, 2 * size):
+    for cell in _local_maxima(cells, ranked, _CANDIDATES, 2 * size):
         x = jnp.asarray(cell)
         # the pairs' score peaks within ~1 mm of a strong scatterer (measured): the
         # coherent lattice searches half its spacing around that
@@ -398,9 +402,10 @@ def _detect(residual, geometry: Geometry, arrays, extent: float, search: _Search
             around = jnp.asarray(_bucketed(_lattice(np.asarray(x), radius, spacing, extent)))
             scores = _on_lattice(kind, around, residual, tx, rx, k, geometry.law)
             x = _newton(kind, around[jnp.argmax(scores)], residual, tx, rx, k, limit, geometry.law)
-        gain = float(_on_lattice("coherent", x[None], residual, tx, rx, k, geometry.law)[0])
+        x = jnp.clip(x, -extent, extent)
+        gain = float(_gain(x, residual, tx, rx, k, geometry.law))  # exact, where it will sit
         if gain > best_gain:
-            best, best_gain = np.clip(np.asarray(x), -extent, extent), gain
+            best, best_gain = np.asarray(x), gain
     return best, best_gain
 
 
@@ -485,7 +490,8 @@ def point_scatterers(
 
     - `signal`: (n_views, n_freq, n_tx, n_rx) complex, seen by ``radar`` at ``viewpoints``.
     - `extent`: half-width of the box (m) the scatterers lie in.
-    - `max_points`: at most this many scatterers.
+    - `max_points`: at most this many rounds, each adding one scatterer (or none, when
+      it merges into one already found): at most this many scatterers.
     - `noise`: the standard deviation of the data's complex noise per sample, if known:
       points that remove less energy than the largest that noise alone would give over the
       box (at a false-alarm rate of 1 %) are not added.
@@ -495,14 +501,15 @@ def point_scatterers(
 
     **Returns:** a `Solution` whose ``field`` is the `PointScatterers` (amplitudes in the
     units of ``signal``), ``rho`` their amplitudes, and ``history`` one entry per round
-    (the relative residual once the round's point is added and refined).
+    (the relative residual once the round's point is added and refined) and one for the
+    final refinement.
     """
     check_positive("points: `extent`", extent)
     check_positive_int("points: `max_points`", max_points)
     for name, value in (("tol", tol), ("floor", floor)):
         if not (isinstance(value, int | float) and 0 <= value < 1):
             raise ValueError(f"points: `{name}` must be a number in [0, 1), got {value!r}.")
-    if noise is not None and not (isinstance(noise, int | float) and noise >= 0):
+    if noise is not None and not (isinstance(noise, int | float | np.floating) and noise >= 0):
         raise ValueError(f"points: `noise` must be a number ≥ 0 or None, got {noise!r}.")
     if not isinstance(refine_steps, int) or refine_steps < 0:
         raise ValueError(f"points: `refine_steps` must be an integer ≥ 0, got {refine_steps!r}.")
@@ -531,7 +538,10 @@ def point_scatterers(
         y = jnp.asarray(y_host)
         residual = y
         for _ in range(max_points):
-            if energy == 0 or float(jnp.linalg.norm(residual)) <= tol * math.sqrt(energy):
+            if energy == 0:
+                outcome = Outcome.ZERO_SIGNAL
+                break
+            if float(jnp.linalg.norm(residual)) <= tol * math.sqrt(energy):
                 outcome = Outcome.CONVERGED
                 break
             x, gain = _detect(residual, geometry, arrays, extent, search)
@@ -551,7 +561,7 @@ def point_scatterers(
             live = _prune(points, np.asarray(amplitudes), live, geometry, arrays, threshold)
             amplitudes = _amplitudes(jnp.asarray(points), jnp.asarray(live), y, *arrays,
                                      geometry.law)  # fmt: skip
-            if live.sum() < before:  # merged: an earlier point was likely on a sidelobe
+            if live.sum() < before:  # merged or dropped: a point was likely on a sidelobe
                 points, amplitudes = _relocalise(points, amplitudes, live, y, geometry, arrays,
                                                  extent, search)  # fmt: skip
             residual = y - _model(jnp.asarray(points), amplitudes, *arrays, geometry.law)
@@ -568,8 +578,8 @@ def point_scatterers(
                                   geometry.law)  # fmt: skip
             residuals.append(float(jnp.linalg.norm(residual)) / math.sqrt(energy))
             seconds.append(time.perf_counter() - started)
-            if residuals[-1] <= tol:  # the refinement explained what the rounds had not
-                outcome = Outcome.CONVERGED
+    if residuals and residuals[-1] <= tol:  # the last round or the refinement got there
+        outcome = Outcome.CONVERGED
     history = History(np.asarray(residuals), np.asarray(seconds))
     scatterers = None
     if len(points):
