@@ -59,6 +59,34 @@ def test_the_model_is_the_grt_and_its_position_gradient_is_exact(small_cube, x64
             assert gradient[i, axis] == pytest.approx(float(central), rel=1e-5)
 
 
+@pytest.mark.parametrize("law", ["radar-equation", "far-field"])
+def test_any_radar_is_modelled_as_the_grt_models_it(law, x64):
+    """The other spreading laws, non-uniform frequencies (the direct phasors, not the
+    ladder) and TX apart from RX: Σ a g(x) equals `synthesize` still, and the lattice's
+    separable coherent score equals the exact one where the law is separable."""
+    rng = np.random.default_rng(3)
+    radar = rj.Radar.from_antennas(
+        rng.uniform(-0.02, 0.02, (3, 3)) * [1, 1, 0],
+        rng.uniform(-0.02, 0.02, (4, 3)) * [1, 1, 0],
+        np.sort(rng.uniform(95e9, 105e9, 5)),
+        near_field=law != "far-field",
+        spreading="radar-equation" if law == "far-field" else law,
+    )
+    views = rj.Viewpoints.grid(3, 2, polar_range=(0.3, 1.2))
+    truth = scatterers(2, 1.0, seed=4)
+    data = rj.synthesize(truth, views, radar)
+    geometry = P.Geometry.of(radar, views)
+    assert not geometry.law.ladder
+    tx, rx, k = geometry.arrays()
+    amplitudes = jnp.asarray(np.asarray(truth.reflectivity, np.complex128)) / data.scale
+    model = P.signals(jnp.asarray(truth.points), amplitudes, tx, rx, k, geometry.law)
+    assert np.linalg.norm(model - data.signal) / np.linalg.norm(data.signal) < 1e-5
+    probes = jnp.asarray(truth.points[:1] + rng.normal(0, 1e-3, (4, 3)))
+    lattice = P._on_lattice("coherent", probes, model, tx, rx, k, geometry.law)
+    exact = [float(P.coherent(x, model, tx, rx, k, geometry.law)) for x in probes]
+    np.testing.assert_allclose(np.asarray(lattice), exact, rtol=1e-9)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("snr_db", [None, 20.0])
 def test_finds_off_grid_points(small_cube, snr_db, tmp_path):
