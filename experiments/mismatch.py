@@ -168,8 +168,8 @@ def label(method: str, snr: float | None) -> str:
 
 def options(method: str, granularity: float, cfg: Config) -> dict:
     """`fit` options of ``method`` on the grid of ``granularity``."""
-    if method == "points":  # on no grid
-        return {"max_points": 2 * cfg.n_scatterers}
+    if method == "points":  # on no grid: no support, not even the runner's shared one
+        return {"max_points": 2 * cfg.n_scatterers, "support": None}
     whole = {"support": None}  # every grid point: a truth off the grid has no support
     if method.startswith("rift"):
         out = rift_options(cfg.n_train, cfg.rift_steps) | whole | {"prune": None}
