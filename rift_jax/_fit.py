@@ -428,8 +428,7 @@ def _fit_scatterers(
     start = time.perf_counter()
     solution = METHODS[method].solve(signal, viewpoints, radar, grid.extent, **solver_options)
     seconds = time.perf_counter() - start
-    points = solution.field
-    scene = Scene(jnp.zeros(grid.shape, jnp.complex64), grid.extent, grid.granularity)
+    points, scene = solution.field, grid  # the grid is all zeros: the scene if none is found
     if points is not None:
         points = PointScatterers(
             points.points, np.asarray(points.reflectivity) * scale, points.extent

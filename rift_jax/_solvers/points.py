@@ -124,6 +124,11 @@ def _amplitude(r_t, r_r, law: Law):
     return jnp.ones(jnp.broadcast_shapes(r_t.shape, r_r.shape))
 
 
+def _norm(r_t, r_r, k, law: Law):
+    """‖g(x)‖² from the point's distances: F · Σ over the pairs and views of A²."""
+    return k.shape[0] * jnp.sum(_amplitude(r_t, r_r, law) ** 2)
+
+
 def _phasors(k, r, law: Law, sign: float = 1.0):
     """e^{±j k_f r} for each distance r (V, A): (V, F, A). On a uniform grid by the
     ladder (`Law`): the powers of e^{j Δk r} by a running product, whose rounding (~F·1e-16)
@@ -161,7 +166,7 @@ def _projection(x, r, tx, rx, k, law: Law):
     e_t, e_r = _phasors(k, r_t, law, -1.0), _phasors(k, r_r, law, -1.0)
     amp = _amplitude(r_t, r_r, law)
     received = jnp.sum(r * amp[:, None] * e_r[:, :, None, :], axis=-1)  # (V, F, M)
-    return jnp.sum(received * e_t), k.shape[0] * jnp.sum(amp**2)
+    return jnp.sum(received * e_t), _norm(r_t, r_r, k, law)
 
 
 def coherent(x, r, tx, rx, k, law: Law) -> Float[Array, ""]:
@@ -202,8 +207,7 @@ def _on_lattice(kind: str, points, r, tx, rx, k, law: Law):
         if law.spreading != "far-field":  # 1/(r_t r_r), and 1/4 of it for the paper's law
             half = 0.5 if law.spreading == "paper" else 1.0
             e_t, e_r = e_t * (half / r_t[:, None]), e_r * (half / r_r[:, None])
-        amp = _amplitude(r_t, r_r, law)
-        return e_t, e_r, k.shape[0] * jnp.sum(amp**2)
+        return e_t, e_r, _norm(r_t, r_r, k, law)
 
     def batch(points):
         e_t, e_r, norm = jax.vmap(factors)(points)
@@ -450,8 +454,7 @@ def _energies(points, amplitudes, tx, rx, k, law: Law):
     """|a_k|² ‖g(x_k)‖²: the energy each point contributes on its own."""
 
     def norm(x):
-        r_t, r_r = _sides(x, tx, rx)
-        return k.shape[0] * jnp.sum(_amplitude(r_t, r_r, law) ** 2)
+        return _norm(*_sides(x, tx, rx), k, law)
 
     return jnp.abs(amplitudes) ** 2 * jax.vmap(norm)(points)
 
