@@ -18,7 +18,7 @@ import numpy as np
 from jaxtyping import Array, Complex
 
 from . import _metrics
-from ._geometry import Radar, Viewpoints, spread
+from ._geometry import C0, Radar, Viewpoints, spread
 from ._models import Field
 from ._operator import grt_operator
 from ._scenes import GridWarning, Scene, grid_size, nesting_granularities, shared_fraction
@@ -135,7 +135,11 @@ class FitResult:
         """The paper's four metrics against ``truth``: m-SSIM, m-COS, t-IoU (truth resampled
         to the inverse grid; `PointScatterers` spread onto it, see their `resample`) and
         p-RMSE of the predicted signals at ``test_viewpoints`` against the truth's (for
-        point scatterers, from their exact positions). Also the recorded data ``residual``."""
+        point scatterers, from their exact positions). Also the recorded data ``residual``.
+        A ``method="points"`` fit against a `PointScatterers` truth is also scored as
+        detections (`rift_jax.metrics.match_points`, within a quarter of the shortest
+        wavelength): ``detected``, ``missed``, ``false_points``, ``position_max``,
+        ``position_rms`` (m) and ``amplitude_error``."""
         if not isinstance(truth, Scene | PointScatterers):
             raise ValueError(
                 "FitResult.evaluate: `truth` must be a rift_jax.Scene or PointScatterers, got "
@@ -144,7 +148,12 @@ class FitResult:
         image = truth
         if isinstance(truth, PointScatterers):  # the metrics compare volumes on one grid
             image = truth.resample(self.scene.granularity)
+        matched = {}
+        if self.method == "points" and isinstance(truth, PointScatterers):
+            gate = C0 / float(np.max(self.radar.frequencies)) / 4
+            matched = _metrics.match_points(self.points, truth, gate=gate)
         return {
+            **matched,
             "m_ssim": _metrics.m_ssim(self.scene, image),
             "m_cos": _metrics.m_cos(self.scene, image),
             "t_iou": _metrics.t_iou(self.scene, image, threshold=threshold),

@@ -10,10 +10,11 @@ signal metric compares phases of signals at viewpoints that were not used for fi
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 from skimage.metrics import structural_similarity
 
 from ._scenes import Scene
-from ._synthesis import RadarData
+from ._synthesis import PointScatterers, RadarData
 from ._validation import check_finite
 
 
@@ -126,3 +127,50 @@ def p_rmse(pred_signal, true_signal) -> float:
     difference = np.angle(p.astype(np.complex128)) - np.angle(t.astype(np.complex128))
     phase = (difference + np.pi) % (2 * np.pi) - np.pi
     return float(np.sqrt(np.mean(phase**2)))
+
+
+def match_points(found: PointScatterers | None, truth: PointScatterers, *, gate: float
+                 ) -> dict[str, float]:  # fmt: skip
+    """Point scatterers scored as detections: each found point matched to at most one true
+    point, closest overall (the assignment of least total distance, scipy's
+    ``linear_sum_assignment``), and a match counts only within ``gate`` metres (a quarter
+    wavelength, say: a point farther off predicts a different phase).
+
+    **Returns:** ``detected`` (matched true points), ``missed`` (true points unmatched),
+    ``false_points`` (found points unmatched); over the matched pairs, the position error's
+    ``position_max`` and ``position_rms`` (m) and ``amplitude_error``, the RMS of
+    |a_found − a_true|/|a_true| (complex amplitudes in the truth's units). NaN without a
+    match.
+
+    **Arguments:** `found`: the points of a fit (`FitResult.points`; None when none was
+    found); `truth`: the true ones; `gate`: the matching distance (m, > 0).
+    """
+    if not isinstance(truth, PointScatterers) or not (
+        found is None or isinstance(found, PointScatterers)
+    ):
+        raise ValueError(
+            "match_points: `found` and `truth` must be PointScatterers (`found` may be None), "
+            f"got {type(found).__name__} and {type(truth).__name__}."
+        )
+    if not (isinstance(gate, int | float | np.floating) and gate > 0):
+        raise ValueError(f"match_points: `gate` must be a distance > 0 (m), got {gate!r}.")
+    positions = np.zeros((0, 3)) if found is None else found.points
+    distance = np.linalg.norm(truth.points[:, None] - positions[None], axis=-1)
+    rows, columns = linear_sum_assignment(distance)
+    kept = distance[rows, columns] < gate
+    rows, columns = rows[kept], columns[kept]
+    errors = distance[rows, columns]
+    nan = float("nan")
+    amplitude = nan
+    if len(rows):
+        true = np.asarray(truth.reflectivity, np.complex128)[rows]
+        estimate = np.asarray(found.reflectivity, np.complex128)[columns]
+        amplitude = float(np.sqrt(np.mean(np.abs((estimate - true) / true) ** 2)))
+    return {
+        "detected": float(len(rows)),
+        "missed": float(len(truth.points) - len(rows)),
+        "false_points": float(len(positions) - len(rows)),
+        "position_max": float(errors.max()) if len(rows) else nan,
+        "position_rms": float(np.sqrt(np.mean(errors**2))) if len(rows) else nan,
+        "amplitude_error": amplitude,
+    }

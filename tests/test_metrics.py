@@ -5,7 +5,7 @@ import pytest
 from skimage.metrics import structural_similarity
 
 import rift_jax as rj
-from rift_jax.metrics import m_cos, m_ssim, p_rmse, t_iou
+from rift_jax.metrics import m_cos, m_ssim, match_points, p_rmse, t_iou
 
 
 @pytest.fixture
@@ -95,3 +95,24 @@ def test_truth_is_resampled_to_the_prediction_grid():
 def test_bad_shapes():
     with pytest.raises(ValueError, match="`pred` must be a Scene or a cubic"):
         m_cos(np.ones((3, 3)), np.ones((3, 3, 3)))
+
+
+def test_match_points_hand_computed():
+    """Two of three true points found (10 and 20 µm off, amplitudes 10 % and 0 % wrong), one
+    false point beside a missed one: the nearest one-to-one matching within the gate."""
+    truth = rj.PointScatterers([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]], [1, 2j, -1], 1.0)
+    found = rj.PointScatterers([[0.1, 20e-6, 0], [10e-6, 0, 0], [0, 0.1, 0.01]], [2j, 1.1, -1], 1.0)
+    scores = match_points(found, truth, gate=1e-3)
+    assert (scores["detected"], scores["missed"], scores["false_points"]) == (2, 1, 1)
+    assert scores["position_max"] == pytest.approx(20e-6)
+    assert scores["position_rms"] == pytest.approx(np.sqrt((10e-6**2 + 20e-6**2) / 2))
+    assert scores["amplitude_error"] == pytest.approx(np.sqrt(0.1**2 / 2), rel=1e-6)
+    # a wider gate takes the false point for the missed one
+    assert match_points(found, truth, gate=0.02)["detected"] == 3
+    nothing = match_points(None, truth, gate=1e-3)
+    assert (nothing["detected"], nothing["missed"], nothing["false_points"]) == (0, 3, 0)
+    assert np.isnan(nothing["position_rms"]) and np.isnan(nothing["amplitude_error"])
+    with pytest.raises(ValueError, match="`gate` must be a distance > 0"):
+        match_points(found, truth, gate=0)
+    with pytest.raises(ValueError, match="`found` and `truth` must be PointScatterers"):
+        match_points(found, truth.points, gate=1e-3)

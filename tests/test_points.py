@@ -5,7 +5,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from scipy.optimize import linear_sum_assignment
 
 import rift_jax as rj
 from rift_jax._solvers import points as P
@@ -22,13 +21,6 @@ def scatterers(count: int, extent: float, seed: int) -> rj.PointScatterers:
             chosen.append(x)
     amplitude = rng.uniform(0.25, 1.0, count) * np.exp(1j * rng.uniform(-np.pi, np.pi, count))
     return rj.PointScatterers(np.array(chosen), amplitude, extent)
-
-
-def matched_errors(truth: rj.PointScatterers, found: rj.PointScatterers) -> np.ndarray:
-    """Each true point's distance to the found point it is matched with (m)."""
-    distance = np.linalg.norm(truth.points[:, None] - found.points[None], axis=-1)
-    rows, columns = linear_sum_assignment(distance)
-    return distance[rows, columns]
 
 
 def test_the_model_is_the_grt_and_its_position_gradient_is_exact(small_cube, x64):
@@ -84,7 +76,7 @@ def test_any_radar_is_modelled_as_the_grt_models_it(law, x64):
     probes = jnp.asarray(truth.points[:1] + rng.normal(0, 1e-3, (4, 3)))
     lattice = P._on_lattice("coherent", probes, model, tx, rx, k, geometry.law)
     exact = [float(P.coherent(x, model, tx, rx, k, geometry.law)) for x in probes]
-    np.testing.assert_allclose(np.asarray(lattice), exact, rtol=1e-9)
+    np.testing.assert_allclose(np.asarray(lattice), exact, rtol=1e-5)  # its products: complex64
 
 
 @pytest.mark.slow
@@ -99,17 +91,16 @@ def test_finds_off_grid_points(small_cube, snr_db, tmp_path):
         max_points=6, progress=False,
     )  # fmt: skip
     assert result.points is not None and len(result.points.points) == 3
-    errors = matched_errors(truth, result.points)
     metrics = result.evaluate(truth, test)
+    assert (metrics["detected"], metrics["missed"], metrics["false_points"]) == (3, 0, 0)
     if snr_db is None:
-        assert errors.max() < 1e-6 and metrics["p_rmse"] < 1e-3
+        assert metrics["position_max"] < 1e-6 and metrics["p_rmse"] < 1e-3
+        assert metrics["amplitude_error"] < 1e-5
         assert result.stopped.outcome is rj.solvers.Outcome.CONVERGED
     else:
-        assert np.sqrt(np.mean(errors**2)) < 50e-6 and metrics["p_rmse"] < 0.05
+        assert metrics["position_rms"] < 50e-6 and metrics["p_rmse"] < 0.05
+        assert metrics["amplitude_error"] < 0.05
     assert metrics["m_ssim"] > 0.95  # the points spread onto the inverse grid, as the truth
-    np.testing.assert_allclose(
-        np.sort(np.abs(result.points.reflectivity)), np.sort(np.abs(truth.reflectivity)), rtol=0.05
-    )
     # saved and loaded, the scatterers come back as they were; PLY writes them, not the grid
     loaded = rj.load(rj.save(tmp_path / "points.h5", result))
     np.testing.assert_array_equal(loaded.points.points, result.points.points)
