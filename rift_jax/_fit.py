@@ -23,7 +23,7 @@ from ._models import Field
 from ._operator import grt_operator
 from ._scenes import GridWarning, Scene, grid_size, nesting_granularities, shared_fraction
 from ._sharding import gathered, replicated
-from ._solvers import Diverged, History, Stop
+from ._solvers import Diverged, History, Outcome, Stop
 from ._solvers._common import DIAGNOSTIC_VIEWS
 from ._solvers.methods import METHODS
 from ._support import Support, as_mask, estimate_support, mask_at, voxels_holding
@@ -445,6 +445,16 @@ def _fit_scatterers(
         scene = points.resample(grid.granularity)
     stats = dict(solution.stats)  # no points: the residual is the data's own, 1
     stats["data_residual"] = float(solution.history.residual[-1]) if len(solution.history) else 1.0
+    if solution.stopped.outcome is Outcome.BUDGET:
+        warnings.warn(
+            f"fit ({method}): every round of `max_points` added a point, and "
+            f"{stats['points']} points leave {stats['data_residual']:.2f} of the data "
+            "unexplained: the scene may hold more scatterers than `max_points` (raise it), "
+            "or more than the radar tells apart (each view sees a scatterer's range only "
+            "modulo c/Δf, in about F − 1 range cells: docs/solvers.md, 'Point scatterers').",
+            FitWarning,
+            stacklevel=3,  # the caller of fit
+        )
     return FitResult(
         scene, solution.history, seconds, method, options, solution.stopped, radar,
         viewpoints, stats, points=points,

@@ -1,6 +1,8 @@
 """Point scatterers at continuous positions (`fit(..., method="points")`): the float64
 model against the GRT, its exact position gradients, and recovery of off-grid points."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -49,6 +51,34 @@ def test_the_model_is_the_grt_and_its_position_gradient_is_exact(small_cube, x64
             shift[i, axis] = step
             central = (functional(points + shift) - functional(points - shift)) / (2 * step)
             assert gradient[i, axis] == pytest.approx(float(central), rel=1e-5)
+
+    # the joint refinement's model, whose derivatives are written per point (each point
+    # moves only its own atom), has the plain model's values and forward-mode derivatives
+    rng = np.random.default_rng(2)
+    d_points = jnp.asarray(rng.normal(size=(2, 3)))
+    d_amplitudes = jnp.asarray(rng.normal(size=2) + 1j * rng.normal(size=2))
+    tangents = (d_points, d_amplitudes)
+    plain, sparse = (
+        jax.jvp(functools.partial(f, tx=tx, rx=rx, k=k, law=geometry.law), (points, amplitudes),
+                tangents)
+        for f in (P.signals, P._sparse_signals)
+    )  # fmt: skip
+    for a, b in zip(plain, sparse, strict=True):
+        np.testing.assert_allclose(
+            np.asarray(b), np.asarray(a), rtol=0, atol=1e-12 * np.abs(a).max()
+        )
+
+
+def test_the_range_profiles_by_fft_are_the_direct_sums(x64):
+    """With uniform frequencies the detection's tables come from an FFT over one period of
+    the bistatic range: the same values as the direct sum over the frequencies there."""
+    rng = np.random.default_rng(5)
+    k = 2 * np.pi * np.linspace(95e9, 105e9, 16) / rj.C0
+    r = jnp.asarray(rng.normal(size=(3, 16, 4, 2)) + 1j * rng.normal(size=(3, 16, 4, 2)))
+    n = 50
+    ranges = jnp.asarray(np.broadcast_to(2 * np.pi / (k[1] - k[0]) / n * np.arange(n), (3, n)))
+    direct = P._profiles(r, jnp.asarray(k), ranges)
+    np.testing.assert_allclose(P._periodic_profiles(r, n), direct, rtol=1e-9)
 
 
 @pytest.mark.parametrize("law", ["radar-equation", "far-field"])
