@@ -447,9 +447,9 @@ def _fit_scatterers(
     stats["data_residual"] = float(solution.history.residual[-1]) if len(solution.history) else 1.0
     if solution.stopped.outcome is Outcome.BUDGET:
         warnings.warn(
-            f"fit ({method}): every round of `max_points` added a point, and "
-            f"{stats['points']} points leave {stats['data_residual']:.2f} of the data "
-            "unexplained: the scene may hold more scatterers than `max_points` (raise it), "
+            f"fit ({method}): all `max_points` rounds ran, and the {stats['points']} points "
+            f"found leave a relative residual of {stats['data_residual']:.2f} "
+            "(‖y − model‖/‖y‖): the scene may hold more scatterers than `max_points` (raise it), "
             "or more than the radar tells apart (each view sees a scatterer's range only "
             "modulo c/Δf, in about F − 1 range cells: docs/solvers.md, 'Point scatterers').",
             FitWarning,

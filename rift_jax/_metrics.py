@@ -9,6 +9,8 @@ signal metric compares phases of signals at viewpoints that were not used for fi
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from skimage.metrics import structural_similarity
@@ -139,8 +141,8 @@ def match_points(found: PointScatterers | None, truth: PointScatterers, *, gate:
     **Returns:** ``detected`` (matched true points), ``missed`` (true points unmatched),
     ``false_points`` (found points unmatched); over the matched pairs, the position error's
     ``position_max`` and ``position_rms`` (m) and ``amplitude_error``, the RMS of
-    |a_found − a_true|/|a_true| (complex amplitudes in the truth's units). NaN without a
-    match.
+    |a_found − a_true|/|a_true| (complex amplitudes in the truth's units; infinite for a
+    true amplitude of 0). NaN without a match.
 
     **Arguments:** `found`: the points of a fit (`FitResult.points`; None when none was
     found); `truth`: the true ones; `gate`: the matching distance (m, > 0).
@@ -152,20 +154,26 @@ def match_points(found: PointScatterers | None, truth: PointScatterers, *, gate:
             "match_points: `found` and `truth` must be PointScatterers (`found` may be None), "
             f"got {type(found).__name__} and {type(truth).__name__}."
         )
-    if not (isinstance(gate, int | float | np.floating) and gate > 0):
+    if not (isinstance(gate, numbers.Real) and gate > 0):
         raise ValueError(f"match_points: `gate` must be a distance > 0 (m), got {gate!r}.")
     positions = np.zeros((0, 3)) if found is None else found.points
     distance = np.linalg.norm(truth.points[:, None] - positions[None], axis=-1)
-    rows, columns = linear_sum_assignment(distance)
+    # pairs beyond the gate cost more than any set of pairs within it: the matching then
+    # keeps every pair it can within the gate (least total distance overall could pair a
+    # miss with a false point far away, and give up a pair a millimetre apart for it)
+    beyond = gate * (min(distance.shape) + 1)
+    rows, columns = linear_sum_assignment(np.where(distance < gate, distance, beyond))
     kept = distance[rows, columns] < gate
     rows, columns = rows[kept], columns[kept]
     errors = distance[rows, columns]
     nan = float("nan")
     amplitude = nan
     if len(rows):
-        true = np.asarray(truth.reflectivity, np.complex128)[rows]
+        true = np.abs(np.asarray(truth.reflectivity, np.complex128)[rows])
         estimate = np.asarray(found.reflectivity, np.complex128)[columns]
-        amplitude = float(np.sqrt(np.mean(np.abs((estimate - true) / true) ** 2)))
+        wrong = np.abs(estimate - np.asarray(truth.reflectivity, np.complex128)[rows])
+        relative = np.divide(wrong, true, out=np.full_like(wrong, np.inf), where=true > 0)
+        amplitude = float(np.sqrt(np.mean(relative**2)))
     return {
         "detected": float(len(rows)),
         "missed": float(len(truth.points) - len(rows)),

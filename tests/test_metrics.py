@@ -109,6 +109,12 @@ def test_match_points_hand_computed():
     assert scores["amplitude_error"] == pytest.approx(np.sqrt(0.1**2 / 2), rel=1e-6)
     # a wider gate takes the false point for the missed one
     assert match_points(found, truth, gate=0.02)["detected"] == 3
+    # a miss far from a false point does not cost the match a millimetre apart
+    far = rj.PointScatterers([[0, 0, 0], [0.9, 0, 0]], [1, 1], 1.0)
+    near_and_false = rj.PointScatterers([[1e-3, 0, 0], [-0.9, 0, 0]], [1, 1], 1.0)
+    crossed = match_points(near_and_false, far, gate=0.01)
+    assert (crossed["detected"], crossed["missed"], crossed["false_points"]) == (1, 1, 1)
+    assert crossed["position_max"] == pytest.approx(1e-3)
     nothing = match_points(None, truth, gate=1e-3)
     assert (nothing["detected"], nothing["missed"], nothing["false_points"]) == (0, 3, 0)
     assert np.isnan(nothing["position_rms"]) and np.isnan(nothing["amplitude_error"])

@@ -63,6 +63,12 @@ def test_the_model_is_the_grt_and_its_position_gradient_is_exact(small_cube, x64
                 tangents)
         for f in (P.signals, P._sparse_signals)
     )  # fmt: skip
+
+    def sparse_functional(points):
+        model = P._sparse_signals(points, amplitudes, tx, rx, k, geometry.law)
+        return jnp.real(jnp.vdot(weights, model))
+
+    np.testing.assert_allclose(jax.grad(sparse_functional)(points), gradient, rtol=1e-10)
     for a, b in zip(plain, sparse, strict=True):
         np.testing.assert_allclose(
             np.asarray(b), np.asarray(a), rtol=0, atol=1e-12 * np.abs(a).max()
@@ -79,6 +85,31 @@ def test_the_range_profiles_by_fft_are_the_direct_sums(x64):
     ranges = jnp.asarray(np.broadcast_to(2 * np.pi / (k[1] - k[0]) / n * np.arange(n), (3, n)))
     direct = P._profiles(r, jnp.asarray(k), ranges)
     np.testing.assert_allclose(P._periodic_profiles(r, n), direct, rtol=1e-9)
+
+
+def test_the_fast_quantile_and_least_squares_are_the_plain_ones(small_cube, x64):
+    """The detection's view quantile (the smallest values taken out in turn) is
+    `jnp.quantile`, ties included; the amplitudes by the normal equations, with empty
+    slots, are `lstsq`'s on the live points, and so is the residual they leave."""
+    rng = np.random.default_rng(6)
+    for n in (1, 2, 6, 40):
+        values = jnp.asarray(rng.integers(0, 4, (30, n)).astype(float))  # many ties
+        np.testing.assert_allclose(
+            P._low_quantile(values, P._QUANTILE), jnp.quantile(values, P._QUANTILE, axis=1)
+        )
+    radar, _, train, _ = small_cube
+    geometry = P.Geometry.of(radar, train[:4])
+    tx, rx, k = geometry.arrays()
+    points = jnp.asarray(rng.uniform(-0.5, 0.5, (4, 3)))
+    live = jnp.asarray([True, False, True, True])
+    y = jnp.asarray(rng.normal(size=(4, *radar.signal_shape)) + 0j)
+    amplitudes, residual = P._least_squares(points, live, y, tx, rx, k, geometry.law)
+    atoms = np.stack([np.asarray(P.atom(x, tx, rx, k, geometry.law)).ravel() for x in points])
+    plain = np.linalg.lstsq(atoms[[0, 2, 3]].T, np.asarray(y).ravel(), rcond=None)[0]
+    np.testing.assert_allclose(np.asarray(amplitudes)[[0, 2, 3]], plain, rtol=1e-9)
+    assert amplitudes[1] == 0
+    np.testing.assert_allclose(residual.ravel(), np.asarray(y).ravel() - plain @ atoms[[0, 2, 3]],
+                               atol=1e-12 * np.abs(y).max())  # fmt: skip
 
 
 @pytest.mark.parametrize("law", ["radar-equation", "far-field"])
@@ -127,6 +158,13 @@ def test_finds_off_grid_points(small_cube, snr_db, tmp_path):
         assert metrics["position_max"] < 1e-6 and metrics["p_rmse"] < 1e-3
         assert metrics["amplitude_error"] < 1e-5
         assert result.stopped.outcome is rj.solvers.Outcome.CONVERGED
+        # one round for three points: the fit says that it ran out of rounds
+        with pytest.warns(rj.FitWarning, match="all `max_points` rounds ran"):
+            short = rj.fit(
+                truth, train, radar=radar, method="points", granularity=0.5, seed=1,
+                max_points=1, refine_steps=0, progress=False,
+            )  # fmt: skip
+        assert short.stopped.outcome is rj.solvers.Outcome.BUDGET and short.residual > 0.1
     else:
         assert metrics["position_rms"] < 50e-6 and metrics["p_rmse"] < 0.05
         assert metrics["amplitude_error"] < 0.05

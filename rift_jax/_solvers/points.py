@@ -52,6 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import scipy.ndimage
+from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Complex, Float
 
 from .._geometry import C0, Radar, Viewpoints, antennas_at
@@ -232,7 +233,7 @@ def _newton(kind: str, x, r, tx, rx, k, step_limit, law: Law, steps: int = 16):
     """Newton ascent of `_score` ``kind`` from ``x``: at most ``steps`` steps, each at most
     ``step_limit`` metres (uphill along the gradient where the Hessian is not negative
     definite). A step that does not raise the score is refused, and the limit quartered.
-    It stops early once a step would move less than ``step_limit``·1e-7 (a nanometre for the
+    It stops early once a step would move less than ``step_limit``·1e-7 (0.04 nm for the
     coherent score's λ/8, where its quadratic convergence has long made it exact)."""
 
     def score(x):
@@ -291,7 +292,8 @@ def _periodic_profiles(r, n: int):
     """`_profiles` at the ranges R_s = s·P/n of one period P = 2π/Δk, for uniform
     wavenumbers k_f = k_0 + f·Δk: Σ_f r_f e^{−j k_f R_s} = e^{−j k_0 R_s} Σ_f r_f e^{−2πj fs/n},
     the length-n FFT of the samples (zero-padded; k_0's factor leaves |·|² unchanged). The
-    cost no longer multiplies the ranges by the frequencies."""
+    cost is an FFT per antenna pair, not a sum over the frequencies at every range. Needs
+    n ≥ F (``fft`` would truncate the samples, not fold them): `_tables` asks ≥ 16(F − 1)."""
 
     def one(r_v):
         return jnp.sum(jnp.abs(jnp.fft.fft(r_v, n=n, axis=0)) ** 2, axis=(1, 2))
@@ -327,7 +329,8 @@ def _tables(r, geometry: Geometry, extent: float, finest: float) -> _Tables:
 
 def _filtered(tables: _Tables, cell: float) -> _Tables:
     """The tables max-filtered over the bistatic ranges that a lattice cell of ``cell``
-    metres covers (and the array's spread): the lattice point nearest a peak reads it."""
+    metres covers (and the array's spread): the lattice point nearest a peak reads it.
+    Periodic tables wrap around."""
     half = int(math.ceil((math.sqrt(3) * cell + tables.spread) / tables.step))
     size = 2 * half + 1
     if tables.periodic and size >= tables.energy.shape[1]:
@@ -384,7 +387,8 @@ def _read_jit(points, energy, start, centre_tx, centre_rx, step, periodic: bool)
 def _low_quantile(values, q: float):
     """``jnp.quantile(values, q, axis=1)`` (linear interpolation), for a low ``q``: the
     few smallest of each row taken out one at a time. XLA's sort of many short rows is
-    slow on a CPU (0.56 s for 110,592 rows of 40, against 0.02 s so)."""
+    slow on a CPU (0.56 s for 110,592 rows of 40; 0.02 s taking out the 9 smallest). Each
+    pass reads the whole array: beyond a few dozen passes sorting is cheaper again."""
     n = values.shape[1]
     h = (n - 1) * q
     low = int(math.floor(h))
@@ -513,13 +517,17 @@ def _localise(centre, residual, geometry: Geometry, arrays, extent: float, searc
 def _least_squares(points, live, y, tx, rx, k, law: Law):
     """Least-squares amplitudes of the ``live`` point scatterers at ``points`` (P, 3) for
     data ``y`` (0 for the others), and the residual they leave. By the normal equations:
-    the atoms of points at least λ/2 apart (`_prune`) are far from parallel (correlation
-    ≲ 0.5), so their P × P Gram matrix is well conditioned, and forming it costs
+    the atoms of points at least λ/2 apart (`_prune` merges closer ones) are far from
+    parallel (correlation ≲ 0.5), so their P × P Gram matrix is well conditioned, and
+    forming it costs
     little beside the SVD that `jnp.linalg.lstsq` would take of the (samples × P) atoms."""
     g = jax.vmap(atom, (0, None, None, None, None))(points, tx, rx, k, law)
     g = jnp.where(live[:, None], g.reshape(points.shape[0], -1), 0)
     gram = jnp.conj(g) @ g.T
     gram = jnp.where(live[:, None] & live[None], gram, jnp.eye(len(live)))
+    # a point just detected on top of another (before `_prune` merges them) would make it
+    # singular: a ridge far below any other scale keeps the solution finite
+    gram = gram + 1e-12 * jnp.max(jnp.abs(jnp.diag(gram))) * jnp.eye(len(live))
     amplitudes = jnp.linalg.solve(gram, jnp.conj(g) @ y.reshape(-1))
     amplitudes = jnp.where(live, amplitudes, 0)
     return amplitudes, y - (amplitudes @ g).reshape(y.shape)
@@ -733,10 +741,16 @@ def _sparse_signals(points, amplitudes, tx, rx, k, law: Law):
     return signals(points, amplitudes, tx, rx, k, law)
 
 
-@_sparse_signals.defjvp
 def _sparse_signals_jvp(law: Law, primals, tangents):
     points, amplitudes, tx, rx, k = primals
-    d_points, d_amplitudes = tangents[:2]
+    if not all(isinstance(t, SymbolicZero) for t in tangents[2:]):
+        raise NotImplementedError(
+            "points: the joint refinement's model is differentiable in the positions and "
+            "amplitudes only; differentiate `signals` for the antennas or wavenumbers."
+        )
+    d_points, d_amplitudes = (
+        jnp.zeros(t.shape, t.dtype) if isinstance(t, SymbolicZero) else t for t in tangents[:2]
+    )
 
     def atom_of(x):
         return atom(x, tx, rx, k, law)
@@ -746,6 +760,9 @@ def _sparse_signals_jvp(law: Law, primals, tangents):
     model = jnp.tensordot(amplitudes, atoms, 1)
     moved = jnp.einsum("k,kj,k...j->...", amplitudes, d_points.astype(slopes.dtype), slopes)
     return model, jnp.tensordot(d_amplitudes, atoms, 1) + moved
+
+
+_sparse_signals.defjvp(_sparse_signals_jvp, symbolic_zeros=True)
 
 
 def _joint_residual(params, args):
