@@ -714,6 +714,12 @@ def point_scatterers(
         if len(points) and refine_steps:
             points, amplitudes = _joint(points, amplitudes, y, geometry, arrays, refine_steps)
             points = np.clip(points, -extent, extent)
+            # the joint refinement may shrink a point to nothing, or bring two together
+            kept = _prune(points, amplitudes, np.ones(len(points), bool), geometry, arrays,
+                          threshold)  # fmt: skip
+            if kept.any() and not kept.all():
+                points = points[kept]
+                amplitudes, _ = _fitted(points, np.ones(len(points), bool), y, geometry, arrays)
             residual = y - _model(jnp.asarray(points), jnp.asarray(amplitudes), *arrays,
                                   geometry.law)  # fmt: skip
             residuals.append(float(jnp.linalg.norm(residual)) / math.sqrt(energy))
