@@ -451,6 +451,13 @@ def antennas_at(radar: Radar, position, orientation):
     return out[0], out[1]
 
 
+def every_view_antennas(radar: Radar, viewpoints: Viewpoints) -> tuple[np.ndarray, np.ndarray]:
+    """Every view's TX and RX positions, (n_views, n_tx | n_rx, 3) metres, float64 NumPy
+    (`antennas_at` for each of ``viewpoints.poses``)."""
+    pairs = [antennas_at(radar, *pose) for pose in zip(*viewpoints.poses(radar), strict=True)]
+    return np.stack([tx for tx, _ in pairs]), np.stack([rx for _, rx in pairs])
+
+
 def _sphere_poses(distance: float, a, p, xp):
     """Position(s) and orientation(s) on the sphere, looking at the origin, for NumPy (host)
     or jax.numpy (traced, inside x64) as ``xp``; scalar or 1-D angles."""

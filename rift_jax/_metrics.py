@@ -134,9 +134,9 @@ def p_rmse(pred_signal, true_signal) -> float:
 def match_points(found: PointScatterers | None, truth: PointScatterers, *, gate: float
                  ) -> dict[str, float]:  # fmt: skip
     """Point scatterers scored as detections: each found point matched to at most one true
-    point, closest overall (the assignment of least total distance, scipy's
-    ``linear_sum_assignment``), and a match counts only within ``gate`` metres (a quarter
-    wavelength, say: a point farther off predicts a different phase).
+    point within ``gate`` metres (a quarter wavelength, say: a point farther off predicts a
+    different phase), as many pairs as can be, and of those the assignment of least total
+    distance (scipy's ``linear_sum_assignment``).
 
     **Returns:** ``detected`` (matched true points), ``missed`` (true points unmatched),
     ``false_points`` (found points unmatched); over the matched pairs, the position error's
@@ -169,10 +169,10 @@ def match_points(found: PointScatterers | None, truth: PointScatterers, *, gate:
     nan = float("nan")
     amplitude = nan
     if len(rows):
-        true = np.abs(np.asarray(truth.reflectivity, np.complex128)[rows])
-        estimate = np.asarray(found.reflectivity, np.complex128)[columns]
-        wrong = np.abs(estimate - np.asarray(truth.reflectivity, np.complex128)[rows])
-        relative = np.divide(wrong, true, out=np.full_like(wrong, np.inf), where=true > 0)
+        true = np.asarray(truth.reflectivity, np.complex128)[rows]
+        wrong = np.abs(np.asarray(found.reflectivity, np.complex128)[columns] - true)
+        size = np.abs(true)
+        relative = np.divide(wrong, size, out=np.full_like(wrong, np.inf), where=size > 0)
         amplitude = float(np.sqrt(np.mean(relative**2)))
     return {
         "detected": float(len(rows)),

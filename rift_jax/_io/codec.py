@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._fit import FitResult
-from .._geometry import Radar, Viewpoints, antennas_at
+from .._geometry import Radar, Viewpoints, every_view_antennas
 from .._models import MODELS, Field, HashGrid, RiftN, RiftS
 from .._scenes import Scene
 from .._solvers import History, Outcome, Recipe, Stop
@@ -147,12 +147,6 @@ def _geometry_arrays(radar: Radar, viewpoints: Viewpoints, antennas: bool) -> di
         tx, rx = every_view_antennas(radar, viewpoints)
         arrays |= {"antennas/tx": tx, "antennas/rx": rx}
     return arrays
-
-
-def every_view_antennas(radar: Radar, viewpoints: Viewpoints) -> tuple[np.ndarray, np.ndarray]:
-    """Every view's TX and RX positions, (n_views, n_tx | n_rx, 3) metres."""
-    pairs = [antennas_at(radar, *pose) for pose in zip(*viewpoints.poses(radar), strict=True)]
-    return np.stack([tx for tx, _ in pairs]), np.stack([rx for _, rx in pairs])
 
 
 def _viewpoints(take: _Arrays, path: str) -> Viewpoints:

@@ -9,9 +9,8 @@ import zipfile
 import jax.numpy as jnp
 import numpy as np
 
-from .._geometry import C0, Radar, Viewpoints
+from .._geometry import C0, Radar, Viewpoints, every_view_antennas
 from .._synthesis import RadarData
-from .codec import every_view_antennas
 
 _PUBLIC_KEYS = ("response", "tx_pos", "rx_pos", "viewpoint_positions", "metadata_json")
 

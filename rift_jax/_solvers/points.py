@@ -55,7 +55,7 @@ import scipy.ndimage
 from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Complex, Float
 
-from .._geometry import C0, Radar, Viewpoints, antennas_at
+from .._geometry import C0, Radar, Viewpoints, every_view_antennas
 from .._synthesis import PointScatterers
 from .._validation import check_positive, check_positive_int
 from ._solution import History, Outcome, Solution, Stop
@@ -88,9 +88,7 @@ class Geometry(NamedTuple):
 
     @classmethod
     def of(cls, radar: Radar, viewpoints: Viewpoints) -> Geometry:
-        pairs = [antennas_at(radar, *pose) for pose in zip(*viewpoints.poses(radar), strict=True)]
-        tx = np.stack([np.asarray(t, np.float64) for t, _ in pairs])
-        rx = np.stack([np.asarray(r, np.float64) for _, r in pairs])
+        tx, rx = (np.asarray(a, np.float64) for a in every_view_antennas(radar, viewpoints))
         k = 2 * np.pi * radar.frequencies / C0
         steps = np.diff(k)
         ladder = bool(len(k) > 1 and np.allclose(steps, steps[0], rtol=1e-12, atol=0))
@@ -719,9 +717,11 @@ def point_scatterers(
                           threshold)  # fmt: skip
             if kept.any() and not kept.all():
                 points = points[kept]
-                amplitudes, _ = _fitted(points, np.ones(len(points), bool), y, geometry, arrays)
-            residual = y - _model(jnp.asarray(points), jnp.asarray(amplitudes), *arrays,
-                                  geometry.law)  # fmt: skip
+                amplitudes, residual = _fitted(points, np.ones(len(points), bool), y, geometry,
+                                               arrays)  # fmt: skip
+            else:
+                residual = y - _model(jnp.asarray(points), jnp.asarray(amplitudes), *arrays,
+                                      geometry.law)  # fmt: skip
             residuals.append(float(jnp.linalg.norm(residual)) / math.sqrt(energy))
             seconds.append(time.perf_counter() - started)
     if residuals and residuals[-1] <= tol:  # the last round or the refinement got there
