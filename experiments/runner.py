@@ -164,8 +164,10 @@ def rift_options(n_train: int, steps: int, batch_views: int = 10) -> dict:
     views, so RIFT-100 and RIFT-1000 get the same compute; the learning rate halves three
     times (after a quarter, half and three quarters of the steps), as in the default
     recipe (every 25 of 100 epochs). Every step is taken (``patience=None``): a budget
-    that stops early says so itself."""
-    epochs = max(1, round(steps * batch_views / n_train))
+    that stops early says so itself. An epoch is the recipe's: from fewer views than its
+    `epoch_views`, several passes over them."""
+    passes = max(1, -(-(rj.solvers.Recipe().epoch_views or 0) // n_train))
+    epochs = max(1, round(steps * batch_views / (passes * n_train)))
     return {
         "epochs": epochs,
         "halve_every": epochs / 4,

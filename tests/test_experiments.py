@@ -353,9 +353,11 @@ def test_rift_options_give_every_run_the_same_steps_and_three_halvings():
     from rift_jax._solvers.inr.optimizer import halving_steps, schedule
     from rift_jax._solvers.inr.recipe import Recipe
 
-    for n, steps in ((100, 200), (1000, 200), (500, 300), (1000, 10000)):
+    from rift_jax._solvers.inr.training import epoch_passes
+
+    for n, steps in ((100, 200), (1000, 200), (500, 300), (1000, 10000), (40, 150), (10, 200)):
         options = runner.rift_options(n, steps=steps)
-        per_epoch = -(-n // options["batch_views"])
+        per_epoch = -(-n * epoch_passes(Recipe(), n) // options["batch_views"])
         total = options["epochs"] * per_epoch
         assert total == pytest.approx(steps, rel=0.2)
         rate = schedule(1.0, halving_steps(Recipe(**options), per_epoch))
@@ -449,7 +451,11 @@ def test_stability_runs_every_method_at_its_defaults_on_shared_data():
     assert inspect.signature(rj.fit).parameters["support"].default == "auto"
     assert stability.DEFAULTS == {"support": "auto"}
     recipe = rj.solvers.Recipe()
-    assert stability.RIFT_DEFAULTS == {"prune": recipe.prune, "patience": recipe.patience}
+    assert stability.RIFT_DEFAULTS == {
+        "prune": recipe.prune,
+        "patience": recipe.patience,
+        "epoch_views": recipe.epoch_views,
+    }
     cfg = stability.SCALES["default"]
     asked = stability.runs(cfg)
     cells = {}

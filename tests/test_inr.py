@@ -12,7 +12,7 @@ import rift_jax as rj
 from rift_jax._solvers._common import as_complex, as_pair, realified
 from rift_jax._solvers.inr.active_set import Candidates, StepPoints
 from rift_jax._solvers.inr.optimizer import _decay_mask, optimizer_for
-from rift_jax._solvers.inr.training import _step, batch_order, on_extent
+from rift_jax._solvers.inr.training import _step, batch_order, epoch_passes, on_extent
 from rift_jax._support import mask_at
 
 # These tests train tiny budgets to test training's mechanics, not its quality: whether a
@@ -63,7 +63,7 @@ def test_hash_grid_encoding_blends_its_corners(tiny):
         rj.HashGrid(coarsest=8, finest=4, key=jax.random.key(0))
     radar, scene, train, _ = tiny
     result = rj.fit(scene, train, radar=radar, method="rift-n", model="hash-grid", epochs=20,
-                    progress=False)  # fmt: skip
+                    epoch_views=None, progress=False)  # fmt: skip
     assert isinstance(result.field.model, rj.HashGrid) and result.stats["model"] == "hash-grid"
 
 
@@ -135,6 +135,25 @@ def test_batches_visit_every_viewpoint_in_one_shape():
     assert set(batches.ravel()) == set(range(23))  # all 23, plus 7 repeated to fill up
     assert not np.array_equal(batches, batch_order(rng, 23, 10))  # a fresh order each epoch
     assert batch_order(rng, 5, 5).shape == (1, 5)
+
+
+def test_an_epoch_visits_at_least_epoch_views_viewpoints():
+    """From fewer viewpoints than `epoch_views`, an epoch passes over them several times,
+    each view equally often, so that the epoch-counted schedule means about as many steps
+    from 10 or 30 views as from 100; from as many or more, one pass, as with None."""
+    recipe = rj.solvers.Recipe()
+    assert recipe.epoch_views == 100 and rj.solvers.RECIPES["paper"].epoch_views is None
+    passes = {n: epoch_passes(recipe, n) for n in (10, 30, 99, 100, 1000)}
+    assert passes == {10: 10, 30: 4, 99: 2, 100: 1, 1000: 1}
+    assert epoch_passes(rj.solvers.Recipe(epoch_views=None), 10) == 1
+    rng = np.random.default_rng(0)
+    batches = batch_order(rng, 30, 10, passes=4)
+    assert batches.shape == (12, 10)
+    assert np.array_equal(np.bincount(batches.ravel()), np.full(30, 4))  # each view 4 times
+    assert len(set(map(tuple, np.split(batches.ravel(), 4)))) == 4  # a fresh order per pass
+    assert batch_order(rng, 7, 10, passes=3).shape == (3, 10)  # 21 views filled up to 30
+    with pytest.raises(ValueError, match="epoch_views"):
+        rj.solvers.Recipe(epoch_views=0)
 
 
 def test_weight_decay_spares_the_gain():
@@ -228,7 +247,8 @@ def test_rift_overfits_a_tiny_scene(tiny):
     the scene comes back."""
     radar, scene, train, test = tiny
     options = dict(radar=radar, method="rift-n", granularity=0.5, progress=False)
-    result = rj.fit(scene, train, epochs=300, patience=None, **options)  # every epoch
+    # every epoch, each one pass over the 30 views (3 steps)
+    result = rj.fit(scene, train, epochs=300, patience=None, epoch_views=None, **options)
     loss = result.history.loss
     assert len(loss) == 300 and result.stopped == rj.solvers.Stop(rj.solvers.Outcome.BUDGET, 300)
     assert loss.min() < 1e-2 * loss[0]
@@ -247,6 +267,7 @@ def test_rift_s_end_to_end_and_seeded(tiny):
     again = rj.fit(scene, train, seed=1, **options)
     other = rj.fit(scene, train, seed=2, **options)
     np.testing.assert_array_equal(first.scene.reflectivity, again.scene.reflectivity)
+    assert first.stats["steps_per_epoch"] == 12  # 30 views, 4 passes (`epoch_views`), 10 a step
     assert not np.allclose(first.scene.reflectivity, other.scene.reflectivity)
     assert first.scene.shape == (3, 3, 3) and first.field is not None
     prediction = first.predict(test)
@@ -363,7 +384,7 @@ def test_patience_stops_a_converged_run_and_keeps_the_best(tiny):
     assert rj.solvers.Recipe().patience == 10 and rj.solvers.RECIPES["paper"].patience is None
     radar, scene, train, _ = tiny
     common = dict(radar=radar, method="rift-n", granularity=0.5, progress=False)
-    common |= dict(epochs=60, learning_rate=2.5e-2)
+    common |= dict(epochs=60, learning_rate=2.5e-2, epoch_views=None)
     full = rj.fit(scene, train, patience=None, **common)
     stopped = rj.fit(scene, train, patience=3, min_improvement=1e-2, **common)
     assert full.stats["remedies"] == stopped.stats["remedies"] == []
@@ -398,7 +419,8 @@ def test_an_active_set_of_every_point_changes_nothing(small_cube):
     (the active set's GRT is the whole one, gathered)."""
     radar, scene, train, _ = small_cube
     common = dict(radar=radar, method="rift-n", granularity=0.5, epochs=12, progress=False)
-    common |= dict(support=None)  # every grid point, with and without an active set
+    # every grid point, with and without an active set
+    common |= dict(support=None, epoch_views=None)
     plain = rj.fit(scene, train, prune=None, **common)
     pruned = rj.fit(scene, train, prune=1e-12, recheck_every=5, **common)
     assert pruned.stats["active_points"] == plain.stats["active_points"] == 729
@@ -451,7 +473,7 @@ def test_pruning_trains_the_scene_on_fewer_points(small_cube, caplog):
     step of its own."""
     radar, scene, train, test = small_cube
     common = dict(radar=radar, method="rift-n", granularity=0.5, epochs=160, progress=False)
-    common |= dict(patience=None, support=None)
+    common |= dict(patience=None, support=None, epoch_views=None)
     plain = rj.fit(scene, train, prune=None, **common)
     pruned = None
 
@@ -485,7 +507,7 @@ def test_coarse_to_fine_explains_what_the_coarse_grid_cannot():
     coarse, fine, common = run["coarse"], run["fine"], run["options"]
     assert coarse.trained is None and fine.trained.shape == (9, 9, 9)
     assert fine.scene.shape == coarse.scene.shape == (5, 5, 5)
-    assert fine.stats["fine_from_epoch"] == 21 and fine.stats["active_points"] < 729
+    assert fine.stats["fine_from_epoch"] == 6 and fine.stats["active_points"] < 729
     # the fine stage's last epochs wander with float32 rounding: its residual ended at 0.013,
     # 0.021 and 0.063 (p-RMSE 0.036-0.088 rad) on 4, 2 and 1 devices; the coarse one stays
     # above 0.5 (and 1 rad)
@@ -510,7 +532,7 @@ def test_coarse_to_fine_on_a_support_after_patience_and_a_coarse_divergence(smal
     radar, scene, train, _ = small_cube
     support = np.zeros((5, 5, 5), bool)
     support[1:4, 1:4, 1:4] = True  # the cube's voxels on the 1 m grid and a margin
-    common = dict(radar=radar, method="rift-n", granularity=1.0, progress=False)
+    common = dict(radar=radar, method="rift-n", granularity=1.0, epoch_views=None, progress=False)
     result = rj.fit(
         scene, train, support=support, train_granularity=0.5, epochs=400, fine_epochs=20,
         patience=3, learning_rate=1e-1, **common,
@@ -587,6 +609,7 @@ def test_holdout_views_are_never_trained_on_and_choose_the_best(small_cube):
     residual is recorded per epoch and picks the best epoch and the stop."""
     radar, scene, train, _ = small_cube
     common = dict(radar=radar, method="rift-n", granularity=0.5, epochs=12, progress=False)
+    common |= dict(epoch_views=None)
     held = rj.fit(scene, train, holdout=4, patience=None, **common)  # every epoch, both
     views = held.stats["holdout_views"]
     assert views == [0, 10, 19, 29]

@@ -27,6 +27,13 @@ class Recipe:
     - `batch_views`: viewpoints per optimizer step (None: all, one step per epoch). An epoch
       visits the viewpoints in a fresh seeded order; when the batch does not divide them,
       the last batch is filled up with the epoch's first viewpoints.
+    - `epoch_views`: an epoch visits at least this many viewpoints: from n fewer, it passes
+      over them ⌈epoch_views / n⌉ times, each pass in a fresh order, so that `epochs`,
+      `halve_every`, `patience` and `recheck_every` mean about as many optimizer steps from
+      10 or 30 views as from 100. (Counted in passes, 100 epochs from 10 views were 100
+      steps, `patience` ended runs after ~20, and the stress grid's 10- and 30-view RIFT(N)
+      runs ended with a residual above the zero image's: docs/rift.md.) None: one pass per
+      epoch, as the paper.
     - `clip_norm`: clip the gradient to this global norm (None: no clipping).
     - `gain`: learn the global complex gain, started where the initial field's signals have
       the data's energy (False: fixed where it starts, 1 as in the paper, or an `init`
@@ -68,6 +75,7 @@ class Recipe:
     weight_decay: float = 1e-2
     halve_every: float | None = 25
     batch_views: int | None = 10
+    epoch_views: int | None = 100
     clip_norm: float | None = 1.0
     gain: bool = True
     adam_eps: float = 1e-8
@@ -95,6 +103,8 @@ class Recipe:
             check_positive("Recipe: `halve_every` (or None)", self.halve_every)
         if self.batch_views is not None:
             check_positive_int("Recipe: `batch_views` (or None)", self.batch_views)
+        if self.epoch_views is not None:
+            check_positive_int("Recipe: `epoch_views` (or None)", self.epoch_views)
         if self.clip_norm is not None:
             check_positive("Recipe: `clip_norm` (or None)", self.clip_norm)
         if not isinstance(self.gain, bool):
@@ -129,6 +139,7 @@ RECIPES = {
         learning_rate=1e-2,
         halve_every=100,
         batch_views=None,
+        epoch_views=None,  # one pass over the viewpoints per epoch
         clip_norm=None,
         gain=False,
         patience=None,  # the paper trains every epoch

@@ -1,7 +1,8 @@
 """One training run of RIFT: a `Field` fitted through the GRT, one epoch per iteration of
 the shared `iterate` (its progress bar, stopping rule and divergence path).
 
-An epoch is a pass over the training viewpoints in minibatches, each one jitted step
+An epoch is a pass over the training viewpoints (several passes when they are fewer than
+the recipe's `epoch_views`) in minibatches, each one jitted step
 (value-and-grad and the optax update); the host syncs once per epoch, so JAX runs ahead
 within it. Between epochs the host picks the active set and, coarse to fine, moves the
 field to its fine points.
@@ -110,7 +111,8 @@ def train(
     n_views = len(trained_views)
     measurements = int(np.prod(signal.shape[1:]))  # per view: frequencies × TX × RX
     batch = n_views if recipe.batch_views is None else min(recipe.batch_views, n_views)
-    steps = n_steps(n_views, batch)
+    passes = epoch_passes(recipe, n_views)
+    steps = n_steps(passes * n_views, batch)
     spec = jax.tree.map(eqx.is_inexact_array, field)
     if not recipe.gain:
         spec = eqx.tree_at(lambda f: (f.log_gain, f.phase), spec, (False, False))
@@ -162,10 +164,10 @@ def train(
                     if state.switch is not None and k < state.switch
                     else recipe.epochs + 1
                 )
-                point_cost = measurements * n_views * (end - k)
+                point_cost = measurements * steps * batch * (end - k)
                 step_points = candidates.restricted(active, step_points, point_cost)
                 step_sizes.add(step_points.n_points)
-        batches = trained_views[batch_order(rng, n_views, batch)]
+        batches = trained_views[batch_order(rng, n_views, batch, passes)]
         indices = replicated(jnp.asarray(batches))
         # traced, not static: steps on stages of other live counts share a program
         over = replicated(jnp.asarray(candidates.n_live, jnp.float32))
@@ -331,12 +333,21 @@ def n_steps(n: int, size: int) -> int:
     return -(-n // size)
 
 
-def batch_order(rng: np.random.Generator, n: int, size: int) -> np.ndarray:
-    """One epoch's viewpoint indices, (steps, size): a fresh permutation, filled up to a
-    whole number of batches with its own first entries (one batch shape, one compilation)."""
-    order = rng.permutation(n)
-    steps = n_steps(n, size)
-    return np.concatenate([order, order[: steps * size - n]]).reshape(steps, size)
+def epoch_passes(recipe: Recipe, n_views: int) -> int:
+    """Passes over ``n_views`` training viewpoints per epoch: enough to visit the recipe's
+    `epoch_views` (1 when they are None or the views are at least as many)."""
+    if recipe.epoch_views is None:
+        return 1
+    return max(1, -(-recipe.epoch_views // n_views))
+
+
+def batch_order(rng: np.random.Generator, n: int, size: int, passes: int = 1) -> np.ndarray:
+    """One epoch's viewpoint indices, (steps, size): ``passes`` fresh permutations one after
+    another, filled up to a whole number of batches with their own first entries (one batch
+    shape, one compilation)."""
+    order = np.concatenate([rng.permutation(n) for _ in range(passes)])
+    steps = n_steps(passes * n, size)
+    return np.concatenate([order, order[: steps * size - passes * n]]).reshape(steps, size)
 
 
 def _energy_gain(field: Field, fn: GRT, coords, signal) -> Float[Array, ""]:
