@@ -352,7 +352,6 @@ def test_draw_shares_the_test_views_and_nests_the_training_views():
 def test_rift_options_give_every_run_the_same_steps_and_three_halvings():
     from rift_jax._solvers.inr.optimizer import halving_steps, schedule
     from rift_jax._solvers.inr.recipe import Recipe
-
     from rift_jax._solvers.inr.training import epoch_passes
 
     for n, steps in ((100, 200), (1000, 200), (500, 300), (1000, 10000), (40, 150), (10, 200)):
