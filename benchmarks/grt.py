@@ -203,11 +203,13 @@ def _throughput_in_process(n_devices: int, n_views: int, repeats: int) -> dict:
 
 def _rift_step_seconds(radar, points, n_views: int = 10, epochs: int = 4) -> float:
     """Median seconds of one RIFT(N) optimizer step on ``n_views`` views (one step per
-    epoch; the first epoch, which compiles, is left out)."""
+    epoch: one pass, ``epoch_views=None``; the first epoch, which compiles, is left out)."""
     viewpoints = rj.Viewpoints.grid(n_views, 1, polar_range=(1.0, 1.0))
     op = rj.grt_operator(radar, viewpoints, points)
     signal = op.mv(jnp.ones(len(points), jnp.complex64))
-    result = rj.solvers.rift(op, signal, model="rift-n", epochs=epochs, progress=False)
+    result = rj.solvers.rift(
+        op, signal, model="rift-n", epochs=epochs, epoch_views=None, progress=False
+    )
     return float(np.median(np.diff(result.history.seconds)))
 
 

@@ -164,16 +164,20 @@ def rift_options(n_train: int, steps: int, batch_views: int = 10) -> dict:
     views, so RIFT-100 and RIFT-1000 get the same compute; the learning rate halves three
     times (after a quarter, half and three quarters of the steps), as in the default
     recipe (every 25 of 100 epochs). Every step is taken (``patience=None``): a budget
-    that stops early says so itself. An epoch is the recipe's: from fewer views than its
-    `epoch_views`, several passes over them."""
-    passes = max(1, -(-(rj.solvers.Recipe().epoch_views or 0) // n_train))
-    epochs = max(1, round(steps * batch_views / (passes * n_train)))
-    return {
+    that stops early says so itself. From fewer views than the recipe's `epoch_views`, an
+    epoch is one pass (``epoch_views=None``), so that a small budget is its own step count
+    (several passes per epoch would round it up to ⌈100/n⌉ steps); from as many, the
+    options are what they were before `epoch_views` existed."""
+    epochs = max(1, round(steps * batch_views / n_train))
+    options = {
         "epochs": epochs,
         "halve_every": epochs / 4,
         "batch_views": batch_views,
         "patience": None,
     }
+    if rj.solvers.Recipe().passes(n_train) > 1:
+        options["epoch_views"] = None
+    return options
 
 
 @dataclasses.dataclass(frozen=True)

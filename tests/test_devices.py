@@ -52,7 +52,8 @@ _WORKLOAD = textwrap.dedent(
         "kaczmarz": solvers.kaczmarz(op, signal, iterations=2, progress=False).rho,
         "fista": solvers.fista(op, signal, iterations=3, power_iterations=3, progress=False).rho,
         "rift": solvers.rift(
-            op, signal, model="rift-n", epochs=3, batch_views=3, width=16, depth=2, progress=False
+            op, signal, model="rift-n", epochs=3, batch_views=3, epoch_views=None, width=16,
+            depth=2, progress=False,
         ).rho,
     }
     np.savez(sys.argv[1], **{k: np.asarray(v) for k, v in out.items()})

@@ -352,16 +352,19 @@ def test_draw_shares_the_test_views_and_nests_the_training_views():
 def test_rift_options_give_every_run_the_same_steps_and_three_halvings():
     from rift_jax._solvers.inr.optimizer import halving_steps, schedule
     from rift_jax._solvers.inr.recipe import Recipe
-    from rift_jax._solvers.inr.training import epoch_passes
 
     for n, steps in ((100, 200), (1000, 200), (500, 300), (1000, 10000), (40, 150), (10, 200)):
         options = runner.rift_options(n, steps=steps)
-        per_epoch = -(-n * epoch_passes(Recipe(), n) // options["batch_views"])
+        per_epoch = -(-n * Recipe(**options).passes(n) // options["batch_views"])
         total = options["epochs"] * per_epoch
         assert total == pytest.approx(steps, rel=0.2)
         rate = schedule(1.0, halving_steps(Recipe(**options), per_epoch))
         rates = sorted({float(rate(step)) for step in range(total)})
         assert rates == [0.125, 0.25, 0.5, 1.0], (n, steps, rates)
+    # from fewer views than an epoch's, one pass per epoch: a small budget is its own count
+    assert runner.rift_options(10, steps=6)["epochs"] == 6
+    assert runner.rift_options(10, steps=6)["epoch_views"] is None
+    assert "epoch_views" not in runner.rift_options(100, steps=6)  # as before it existed
 
 
 def _bars(strong: float, weak: float, gap_fill: float, weak_fill: float = 0.0):

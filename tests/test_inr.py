@@ -12,7 +12,7 @@ import rift_jax as rj
 from rift_jax._solvers._common import as_complex, as_pair, realified
 from rift_jax._solvers.inr.active_set import Candidates, StepPoints
 from rift_jax._solvers.inr.optimizer import _decay_mask, optimizer_for
-from rift_jax._solvers.inr.training import _step, batch_order, epoch_passes, on_extent
+from rift_jax._solvers.inr.training import _step, batch_order, on_extent
 from rift_jax._support import mask_at
 
 # These tests train tiny budgets to test training's mechanics, not its quality: whether a
@@ -143,9 +143,9 @@ def test_an_epoch_visits_at_least_epoch_views_viewpoints():
     from 10 or 30 views as from 100; from as many or more, one pass, as with None."""
     recipe = rj.solvers.Recipe()
     assert recipe.epoch_views == 100 and rj.solvers.RECIPES["paper"].epoch_views is None
-    passes = {n: epoch_passes(recipe, n) for n in (10, 30, 99, 100, 1000)}
+    passes = {n: recipe.passes(n) for n in (10, 30, 99, 100, 1000)}
     assert passes == {10: 10, 30: 4, 99: 2, 100: 1, 1000: 1}
-    assert epoch_passes(rj.solvers.Recipe(epoch_views=None), 10) == 1
+    assert rj.solvers.Recipe(epoch_views=None).passes(10) == 1
     rng = np.random.default_rng(0)
     batches = batch_order(rng, 30, 10, passes=4)
     assert batches.shape == (12, 10)
@@ -267,7 +267,8 @@ def test_rift_s_end_to_end_and_seeded(tiny):
     again = rj.fit(scene, train, seed=1, **options)
     other = rj.fit(scene, train, seed=2, **options)
     np.testing.assert_array_equal(first.scene.reflectivity, again.scene.reflectivity)
-    assert first.stats["steps_per_epoch"] == 12  # 30 views, 4 passes (`epoch_views`), 10 a step
+    # 30 views: 4 passes (`epoch_views`) of 3 steps of 10
+    assert first.stats["passes_per_epoch"] == 4 and first.stats["steps_per_epoch"] == 12
     assert not np.allclose(first.scene.reflectivity, other.scene.reflectivity)
     assert first.scene.shape == (3, 3, 3) and first.field is not None
     prediction = first.predict(test)

@@ -400,7 +400,10 @@ def _decode_value(value, take: _Arrays, path: str):
     if tag == "$array":
         return take[value[tag]]
     if tag == "$recipe":
-        return Recipe(**_decode_value(value[tag], take, path))
+        fields = _decode_value(value[tag], take, path)
+        # a file from before `epoch_views` existed: its run made one pass per epoch
+        fields.setdefault("epoch_views", None)
+        return Recipe(**fields)
     if tag == "$module":
         return _decode_module(value[tag], take, path)
     raise ValueError(

@@ -18,22 +18,21 @@ class Recipe:
 
     - `loss`: ``"robust"`` (default), ``"paper"`` (see `rift_jax.losses`), or a callable
       ``loss(pred, target) -> scalar``.
-    - `epochs`: passes over the training viewpoints.
+    - `epochs`: how many epochs, each one or more passes over the training viewpoints
+      (`epoch_views`).
     - `learning_rate`, `weight_decay`, `adam_eps`: `optax.adamw`'s (weight decay applies to
       the INR, not to the gain). ``learning_rate=None`` takes the model's own default
       (`AbstractINR.learning_rate`: 1e-2 for RiftN and HashGrid, 1e-3 for RiftS).
     - `halve_every`: halve the learning rate every this many epochs, a fraction allowed
       (counted in optimizer steps, at least one; None: constant).
-    - `batch_views`: viewpoints per optimizer step (None: all, one step per epoch). An epoch
-      visits the viewpoints in a fresh seeded order; when the batch does not divide them,
-      the last batch is filled up with the epoch's first viewpoints.
+    - `batch_views`: viewpoints per optimizer step (None: all, one step per pass). Each pass
+      visits the viewpoints in a fresh seeded order; when the batch does not divide an
+      epoch's views, the last batch is filled up with the epoch's first ones.
     - `epoch_views`: an epoch visits at least this many viewpoints: from n fewer, it passes
-      over them ⌈epoch_views / n⌉ times, each pass in a fresh order, so that `epochs`,
-      `halve_every`, `patience` and `recheck_every` mean about as many optimizer steps from
-      10 or 30 views as from 100. (Counted in passes, 100 epochs from 10 views were 100
-      steps, `patience` ended runs after ~20, and the stress grid's 10- and 30-view RIFT(N)
-      runs ended with a residual above the zero image's: docs/rift.md.) None: one pass per
-      epoch, as the paper.
+      over them ⌈epoch_views / n⌉ times (`passes`), each pass in a fresh order, so that
+      `epochs`, `halve_every`, `patience` and `recheck_every` mean about as many optimizer
+      steps from 10 or 30 views as from 100 (docs/rift.md, "Few viewpoints"). None: one
+      pass per epoch, as the paper.
     - `clip_norm`: clip the gradient to this global norm (None: no clipping).
     - `gain`: learn the global complex gain, started where the initial field's signals have
       the data's energy (False: fixed where it starts, 1 as in the paper, or an `init`
@@ -122,6 +121,13 @@ class Recipe:
             raise ValueError(
                 f"Recipe: `min_improvement` must be in [0, 1), got {self.min_improvement!r}."
             )
+
+    def passes(self, n_views: int) -> int:
+        """Passes over ``n_views`` training viewpoints per epoch: enough to visit
+        `epoch_views` of them (1 when that is None or the views are at least as many)."""
+        if self.epoch_views is None:
+            return 1
+        return max(1, -(-self.epoch_views // n_views))
 
     @property
     def loss_fn(self) -> Callable:

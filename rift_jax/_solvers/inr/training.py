@@ -111,7 +111,7 @@ def train(
     n_views = len(trained_views)
     measurements = int(np.prod(signal.shape[1:]))  # per view: frequencies × TX × RX
     batch = n_views if recipe.batch_views is None else min(recipe.batch_views, n_views)
-    passes = epoch_passes(recipe, n_views)
+    passes = recipe.passes(n_views)
     steps = n_steps(passes * n_views, batch)
     spec = jax.tree.map(eqx.is_inexact_array, field)
     if not recipe.gain:
@@ -233,6 +233,7 @@ def train(
             "epochs_run": len(run.history),
             "best_loss": math.inf if index is None else float(measures[index]),
             "steps_per_epoch": steps,
+            "passes_per_epoch": passes,  # over the trained views (`epoch_views`)
             "batch_views": batch,
             "active_points": int(trained.sum()),
             "step_sizes": sorted(step_sizes),  # padded point counts trained (one program each)
@@ -287,12 +288,14 @@ def _fine_stage(where: str, recipe: Recipe, fine_points, fine_epochs):
         raise ValueError(
             f"{where}: `fine_points` must have shape (k, 3) with k ≥ 1, got {fine_points.shape}."
         )
-    fine_epochs = recipe.epochs // 2 if fine_epochs is None else fine_epochs
+    given = fine_epochs is not None
+    fine_epochs = fine_epochs if given else recipe.epochs // 2
     whole = isinstance(fine_epochs, int | np.integer) and not isinstance(fine_epochs, bool)
     if not (whole and 1 <= fine_epochs < recipe.epochs):
+        got = f"got {fine_epochs!r}" if given else f"half the epochs by default: {fine_epochs}"
         raise ValueError(
             f"{where}: `fine_epochs` must be an int in [1, {recipe.epochs - 1}] (the epochs "
-            f"are {recipe.epochs}), got {fine_epochs!r}."
+            f"are {recipe.epochs}), {got}."
         )
     return fine_points, fine_epochs, recipe.epochs - fine_epochs + 1
 
@@ -331,14 +334,6 @@ def on_extent(field: Field, extent: float) -> Field:
 
 def n_steps(n: int, size: int) -> int:
     return -(-n // size)
-
-
-def epoch_passes(recipe: Recipe, n_views: int) -> int:
-    """Passes over ``n_views`` training viewpoints per epoch: enough to visit the recipe's
-    `epoch_views` (1 when they are None or the views are at least as many)."""
-    if recipe.epoch_views is None:
-        return 1
-    return max(1, -(-recipe.epoch_views // n_views))
 
 
 def batch_order(rng: np.random.Generator, n: int, size: int, passes: int = 1) -> np.ndarray:
