@@ -45,8 +45,8 @@ def main(argv=None):
     lsmr = rj.fit(
         data, train, method="lsmr", granularity=0.25, extent=1.0, iterations=20, progress=False
     )
-    rift = rj.fit(
-        data, train, method="rift-n", granularity=0.25, extent=1.0, epochs=20, progress=False
+    rift = rj.fit(  # each epoch 5 passes over the 20 views (`epoch_views`): 10 steps
+        data, train, method="rift-n", granularity=0.25, extent=1.0, epochs=4, progress=False
     )
     scores = {
         name: r.evaluate(scene, test)["m_ssim"] for name, r in (("lsmr", lsmr), ("rift", rift))
