@@ -164,7 +164,7 @@ def train(
                     if state.switch is not None and k < state.switch
                     else recipe.epochs + 1
                 )
-                point_cost = measurements * steps * batch * (end - k)
+                point_cost = measurements * passes * n_views * (end - k)
                 step_points = candidates.restricted(active, step_points, point_cost)
                 step_sizes.add(step_points.n_points)
         batches = trained_views[batch_order(rng, n_views, batch, passes)]
