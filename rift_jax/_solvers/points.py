@@ -88,7 +88,7 @@ class Geometry(NamedTuple):
 
     @classmethod
     def of(cls, radar: Radar, viewpoints: Viewpoints) -> Geometry:
-        tx, rx = (np.asarray(a, np.float64) for a in every_view_antennas(radar, viewpoints))
+        tx, rx = every_view_antennas(radar, viewpoints)  # float64 NumPy
         k = 2 * np.pi * radar.frequencies / C0
         steps = np.diff(k)
         ladder = bool(len(k) > 1 and np.allclose(steps, steps[0], rtol=1e-12, atol=0))
