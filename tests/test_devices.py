@@ -117,6 +117,7 @@ def test_results_do_not_depend_on_the_device_count(by_device_count):
     np.testing.assert_array_equal(other["operator"], base["operator"])
 
 
+@pytest.mark.slow  # as test_operator's view-block test
 def test_plain_calls_compile_once(caplog):
     """A second plain call with new values of the same shapes compiles nothing (before the
     kernels were jitted, every call traced and compiled the whole scan again: 0.8 s). For

@@ -110,6 +110,7 @@ def check_shared_supports(results):
         assert all(row["fit_seconds"] > row["support_seconds"] > 0 for row in rows)
 
 
+@pytest.mark.slow  # as the experiments' other end-to-end checks
 def test_shared_support_is_the_one_fit_estimates(small_cube):
     """The runner's shared estimate is `fit`'s own ``support="auto"`` on the same data:
     noisy signals, synthesised with the run's noise and seed."""

@@ -40,6 +40,7 @@ def test_model_shapes_and_dtypes(cls):
     np.testing.assert_allclose(field.scaled(3.0).render(5.0 * xyz), 3 * rho, rtol=1e-5)
 
 
+@pytest.mark.slow  # the third model, not a default
 def test_hash_grid_encoding_blends_its_corners(tiny):
     """`HashGrid`: a dense level's corner holds its own table entry and a cell's centre the
     mean of its 8 corners; a level with more corners than entries hashes into the table;
@@ -224,6 +225,7 @@ def test_gradient_through_the_grt_matches_float64_finite_differences(tiny, loss_
             assert ad == pytest.approx(finite_difference, rel=2e-3, abs=1e-6)
 
 
+@pytest.mark.slow  # op-by-op dispatch compiles every primitive (~30 s)
 def test_jit_step_equals_eager_step(tiny):
     _, scene, train, _ = tiny
     radar = rj.Radar(n_frequencies=4, n_tx=2, n_rx=3)  # op-by-op dispatch is slow: keep it small
@@ -260,6 +262,7 @@ def test_rift_overfits_a_tiny_scene(tiny):
     np.testing.assert_allclose(result.render(0.5).reflectivity, result.scene.reflectivity, 1e-4)
 
 
+@pytest.mark.slow  # RIFT(S) compiles steps of its own; RIFT(N)'s path is the same
 def test_rift_s_end_to_end_and_seeded(tiny):
     radar, scene, train, test = tiny
     options = dict(radar=radar, method="rift-s", epochs=3, progress=False)
@@ -293,6 +296,7 @@ def test_paper_recipe_runs_with_a_fixed_gain(tiny):
     assert complex(result.field.gain) == pytest.approx(scale, rel=1e-5)
 
 
+@pytest.mark.slow  # an option, off by default
 def test_a_least_squares_start_begins_at_its_image(tiny):
     """``init="fista"``: FISTA runs on the same operator and data, and the fresh INR is
     fitted to its image before training; with a tiny learning rate the result is that
@@ -314,6 +318,7 @@ def test_a_least_squares_start_begins_at_its_image(tiny):
         rj.fit(scene, train, init="lsmr", holdout=2, epochs=2, **common)
 
 
+@pytest.mark.slow  # an option, off by default
 def test_the_sparsity_prior_is_scale_free_and_joins_the_loss(tiny):
     """`concentration` is ‖ρ‖₁/(√k‖ρ‖₂) over live points of a field on k: 1 flat, 1/√k
     for one point, whatever the scale; ``sparsity`` adds it to the loss, and 0 leaves
@@ -524,6 +529,7 @@ def test_coarse_to_fine_explains_what_the_coarse_grid_cannot():
         rj.fit(scene, train, method="lsmr", granularity=1.0, train_granularity=0.5)
 
 
+@pytest.mark.slow  # default run: test_coarse_to_fine_explains_what_the_coarse_grid_cannot
 def test_coarse_to_fine_on_a_support_after_patience_and_a_coarse_divergence(small_cube):
     """Patience ends the coarse stage early and the fine one gets its own epochs; on a
     support, only fine points inside it are trained. A loss that turns NaN once the
@@ -568,6 +574,7 @@ def test_coarse_to_fine_on_a_support_after_patience_and_a_coarse_divergence(smal
     assert np.isfinite(float(kept))
 
 
+@pytest.mark.slow  # what compiles, not what it computes
 def test_fields_of_any_extent_train_with_one_compiled_step(tiny, caplog):
     """The step trains the field on coordinates already divided by its extent (the extent
     is a static field of `Field`, so it would key the compilation): fits of other extents
@@ -605,6 +612,7 @@ def test_fields_of_any_extent_train_with_one_compiled_step(tiny, caplog):
     )
 
 
+@pytest.mark.slow  # an option, off by default
 def test_holdout_views_are_never_trained_on_and_choose_the_best(small_cube):
     """With ``holdout``, training is the run on the other views exactly; the held-out
     residual is recorded per epoch and picks the best epoch and the stop."""

@@ -72,7 +72,9 @@ def test_adjoint_transpose_and_gradient_agree(problem):
         back = op.fn.adjoint(y)
         # lineax's transpose (jax.linear_transpose through shard_map) is the plain transpose
         transposed = op.transpose().mv(jnp.conj(y))
-        blocks = sum(op.fn.view_adjoint(y[i], i) for i in range(op.fn.n_views))
+        # every view's row block, summed: one traced index, not a program per view
+        views = jnp.arange(op.fn.n_views)
+        blocks = jnp.sum(jax.vmap(lambda i: op.fn.view_adjoint(y[i], i))(views), axis=0)
         grad = jax.grad(lambda r: jnp.sum(jnp.abs(op.mv(r) - y) ** 2))(rho)
         return forward, back, transposed, blocks, grad, op.fn.adjoint(forward - y)
 
@@ -94,6 +96,7 @@ def test_vmap_over_reflectivities_and_views(problem):
     assert relative_error(views, single[jnp.array([2, 5])]) < 1e-6
 
 
+@pytest.mark.slow  # compiles the forward for four block sizes
 def test_plain_calls_run_in_view_blocks_sharing_one_program(problem, caplog):
     """A call on concrete values runs its views in blocks of `views_per_block`, the last
     one padded (fewer views: one smaller block): the same signals as all views in one
@@ -189,6 +192,7 @@ def test_degenerate_geometry_stays_finite():
         assert method == "rift-n" or metrics["residual"] <= 1.0, (method, metrics)
 
 
+@pytest.mark.slow  # LSMR's path; LSMR itself: test_solvers
 def test_lineax_variants_use_the_kernels_and_a_lineax_solver_runs():
     rng = np.random.default_rng(2)
     radar = rj.Radar(n_frequencies=8, n_tx=3, n_rx=3)

@@ -40,6 +40,7 @@ def test_the_model_is_the_grt_and_its_position_gradient_is_exact(small_cube, x64
 
     weights = jnp.asarray(np.random.default_rng(0).normal(size=model.shape) + 0j)
 
+    @jax.jit  # one program for the 13 evaluations below (op by op, each shape compiled)
     def functional(points):
         return jnp.real(jnp.vdot(weights, P.signals(points, amplitudes, tx, rx, k, geometry.law)))
 
@@ -58,12 +59,14 @@ def test_the_model_is_the_grt_and_its_position_gradient_is_exact(small_cube, x64
     d_points = jnp.asarray(rng.normal(size=(2, 3)))
     d_amplitudes = jnp.asarray(rng.normal(size=2) + 1j * rng.normal(size=2))
     tangents = (d_points, d_amplitudes)
-    plain, sparse = (
-        jax.jvp(functools.partial(f, tx=tx, rx=rx, k=k, law=geometry.law), (points, amplitudes),
-                tangents)
-        for f in (P.signals, P._sparse_signals)
-    )  # fmt: skip
 
+    def derivative(model):  # jitted, as `functional`
+        model = functools.partial(model, tx=tx, rx=rx, k=k, law=geometry.law)
+        return jax.jit(lambda *at: jax.jvp(model, at, tangents))(points, amplitudes)
+
+    plain, sparse = derivative(P.signals), derivative(P._sparse_signals)
+
+    @jax.jit
     def sparse_functional(points):
         model = P._sparse_signals(points, amplitudes, tx, rx, k, geometry.law)
         return jnp.real(jnp.vdot(weights, model))

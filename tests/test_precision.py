@@ -194,7 +194,14 @@ METHODS = {
 }
 
 
-@pytest.mark.parametrize("method", METHODS)
+# `fit`'s default method and RIFT(N); the others (~10-20 s each) with `-m slow`
+@pytest.mark.parametrize(
+    "method",
+    [
+        pytest.param(m, marks=pytest.mark.slow) if m not in ("fista", "rift-n") else m
+        for m in METHODS
+    ],
+)
 def test_what_each_solver_compiles(compiled, caplog, method):
     """A real run of each solver, on a problem size no other test uses (so that it compiles
     here rather than hitting a cache): every product in every module XLA compiled for it

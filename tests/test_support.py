@@ -40,7 +40,15 @@ def test_a_support_holding_the_scene_gives_the_full_grid_answer(small_cube, arou
     assert kept.stats["support_leak"] < 1e-2  # nothing left outside to explain
 
 
-@pytest.mark.parametrize("method", ["kaczmarz", "gauss-newton", "fista", "rift-n", "rift-s"])
+# `fit`'s default method and RIFT(N); the others (~10 s each) with `-m slow`
+@pytest.mark.parametrize(
+    "method",
+    [
+        "fista",
+        "rift-n",
+        *(pytest.param(m, marks=pytest.mark.slow) for m in ("kaczmarz", "gauss-newton", "rift-s")),
+    ],
+)
 def test_every_method_takes_a_support(small_cube, around_the_cube, method):
     radar, scene, train, test = small_cube
     support = around_the_cube
@@ -73,6 +81,7 @@ def test_support_leak_tells_a_dropped_scatterer(small_cube, around_the_cube):
     assert dropped.stats["support_leak"] > 0.1 > 0.03 > kept.stats["support_leak"]
 
 
+@pytest.mark.slow  # its cost; the leak itself: the test above
 def test_support_leak_reads_a_bounded_sample_of_views(small_cube, monkeypatch):
     """The leak backprojects from at most `_LEAK_VIEWS` training views, evenly spread, so
     that its cost does not grow with the fit's view count: here 10 of 30, checked against
@@ -283,7 +292,14 @@ def test_a_padded_operator_is_the_operator_with_zero_columns(small_radar, rng, c
     assert not compilations(caplog, lambda: (whole.fn(on_padding), whole.fn.adjoint(signal)))
 
 
-@pytest.mark.parametrize("method", ["lsmr", "fista", "kaczmarz", "gauss-newton"])
+# `fit`'s default method in the default run; the others (~15 s each) with `-m slow`
+@pytest.mark.parametrize(
+    "method",
+    [
+        "fista",
+        *(pytest.param(m, marks=pytest.mark.slow) for m in ("lsmr", "kaczmarz", "gauss-newton")),
+    ],
+)
 def test_every_solver_on_a_padded_operator_gives_the_unpadded_answer(method, small_cube):
     """The fast path (a support padded to a shared size) against the plain one: the same ρ
     on the support's points, within float32, whatever a start holds on the padding (ρ
@@ -321,6 +337,7 @@ def test_fit_on_a_padded_support_gives_the_unpadded_fit(small_cube, around_the_c
         assert padded.stats[key] == pytest.approx(plain.stats[key], rel=1e-4, abs=1e-6), key
 
 
+@pytest.mark.slow  # compiles three methods' steps twice over
 @pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # RIFT for 2 epochs fits little
 def test_supports_of_nearby_sizes_share_the_compiled_steps(small_cube, caplog):
     """Two fits whose supports differ in size but share a ladder rung (so FISTA's step
