@@ -72,7 +72,7 @@ def test_adjoint_transpose_and_gradient_agree(problem):
         back = op.fn.adjoint(y)
         # lineax's transpose (jax.linear_transpose through shard_map) is the plain transpose
         transposed = op.transpose().mv(jnp.conj(y))
-        # every view's row block, summed: one traced index, not a program per view
+        # every view's row block, summed: one traced index, not 9 unrolled copies
         views = jnp.arange(op.fn.n_views)
         blocks = jnp.sum(jax.vmap(lambda i: op.fn.view_adjoint(y[i], i))(views), axis=0)
         grad = jax.grad(lambda r: jnp.sum(jnp.abs(op.mv(r) - y) ** 2))(rho)

@@ -81,7 +81,6 @@ def test_support_leak_tells_a_dropped_scatterer(small_cube, around_the_cube):
     assert dropped.stats["support_leak"] > 0.1 > 0.03 > kept.stats["support_leak"]
 
 
-@pytest.mark.slow  # its cost; the leak itself: the test above
 def test_support_leak_reads_a_bounded_sample_of_views(small_cube, monkeypatch):
     """The leak backprojects from at most `_LEAK_VIEWS` training views, evenly spread, so
     that its cost does not grow with the fit's view count: here 10 of 30, checked against
@@ -337,7 +336,7 @@ def test_fit_on_a_padded_support_gives_the_unpadded_fit(small_cube, around_the_c
         assert padded.stats[key] == pytest.approx(plain.stats[key], rel=1e-4, abs=1e-6), key
 
 
-@pytest.mark.slow  # compiles three methods' steps twice over
+@pytest.mark.slow  # what compiles, not what it computes (the padded fit: the test above)
 @pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # RIFT for 2 epochs fits little
 def test_supports_of_nearby_sizes_share_the_compiled_steps(small_cube, caplog):
     """Two fits whose supports differ in size but share a ladder rung (so FISTA's step
