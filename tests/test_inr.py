@@ -503,6 +503,7 @@ def test_pruning_trains_the_scene_on_fewer_points(small_cube, caplog):
         rj.solvers.Recipe(recheck_every=0)
 
 
+@pytest.mark.slow  # an option (`train_granularity`), off by default
 def test_coarse_to_fine_explains_what_the_coarse_grid_cannot():
     """docs/rift.md's coarse-to-fine example, as written: data made on a 0.5 m grid, inverse
     grid 1 m. Trained on the inverse grid alone the field cannot explain them; its last
@@ -529,7 +530,7 @@ def test_coarse_to_fine_explains_what_the_coarse_grid_cannot():
         rj.fit(scene, train, method="lsmr", granularity=1.0, train_granularity=0.5)
 
 
-@pytest.mark.slow  # default run: test_coarse_to_fine_explains_what_the_coarse_grid_cannot
+@pytest.mark.slow  # an option (`train_granularity`), off by default
 def test_coarse_to_fine_on_a_support_after_patience_and_a_coarse_divergence(small_cube):
     """Patience ends the coarse stage early and the fine one gets its own epochs; on a
     support, only fine points inside it are trained. A loss that turns NaN once the

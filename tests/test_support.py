@@ -23,6 +23,7 @@ def around_the_cube(small_cube):
     return scipy.ndimage.binary_dilation(np.asarray(scene.reflectivity) != 0)
 
 
+@pytest.mark.slow  # LSMR on two grids (~40 s); FISTA on a support: below
 def test_a_support_holding_the_scene_gives_the_full_grid_answer(small_cube, around_the_cube):
     """Matched grid, exact data: least squares on 81 of 729 points and on the whole grid
     both recover the scene, to float32 agreement."""
