@@ -84,6 +84,13 @@ def pytest_collection_modifyitems(items):
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable within a file
 
 
+def default_then_slow(default, slow) -> list:
+    """Parameters for `pytest.mark.parametrize`: those in ``default`` run in the default
+    run, the rest of ``slow`` only with ``-m slow`` (other methods' checks that compile
+    programs of their own; CI runs them as its second command)."""
+    return [*default, *(pytest.param(v, marks=pytest.mark.slow) for v in slow if v not in default)]
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(0)

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import compilations, random_complex
+from conftest import compilations, default_then_slow, random_complex
 from jax.extend.core import ClosedJaxpr, Jaxpr
 
 import rift_jax as rj
@@ -195,13 +195,7 @@ METHODS = {
 
 
 # `fit`'s default method and RIFT(N); the others (~10-20 s each) with `-m slow`
-@pytest.mark.parametrize(
-    "method",
-    [
-        pytest.param(m, marks=pytest.mark.slow) if m not in ("fista", "rift-n") else m
-        for m in METHODS
-    ],
-)
+@pytest.mark.parametrize("method", default_then_slow(("fista", "rift-n"), METHODS))
 def test_what_each_solver_compiles(compiled, caplog, method):
     """A real run of each solver, on a problem size no other test uses (so that it compiles
     here rather than hitting a cache): every product in every module XLA compiled for it

@@ -6,7 +6,7 @@ import warnings
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import compilations
+from conftest import compilations, default_then_slow
 
 import rift_jax as rj
 
@@ -57,9 +57,7 @@ def test_signal_scale_changes_nothing(small_cube, method, options, factors, tole
 
 @pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # tiny budgets: RIFT fits little
 # `fit`'s default method; the paper's two (~20-45 s each) with `-m slow`
-@pytest.mark.parametrize(
-    "method", ["fista", *(pytest.param(m, marks=pytest.mark.slow) for m in ("kaczmarz", "rift-n"))]
-)
+@pytest.mark.parametrize("method", default_then_slow(["fista"], ["kaczmarz", "rift-n"]))
 def test_noise_degrades_smoothly_and_never_gives_nan(finer_problem, method):
     """From noise-free data through 30, 20, 10, 0 and -10 dB SNR the metrics stay finite and
     the m-SSIM never jumps up (within a margin for run-to-run variation) or to NaN; at -10 dB

@@ -6,7 +6,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.ndimage
-from conftest import assert_compilations_are_logged, compilations, relative_error
+from conftest import (
+    assert_compilations_are_logged,
+    compilations,
+    default_then_slow,
+    relative_error,
+)
 
 import rift_jax as rj
 import rift_jax._fit
@@ -43,12 +48,7 @@ def test_a_support_holding_the_scene_gives_the_full_grid_answer(small_cube, arou
 
 # `fit`'s default method and RIFT(N); the others (~10 s each) with `-m slow`
 @pytest.mark.parametrize(
-    "method",
-    [
-        "fista",
-        "rift-n",
-        *(pytest.param(m, marks=pytest.mark.slow) for m in ("kaczmarz", "gauss-newton", "rift-s")),
-    ],
+    "method", default_then_slow(["fista", "rift-n"], ["kaczmarz", "gauss-newton", "rift-s"])
 )
 def test_every_method_takes_a_support(small_cube, around_the_cube, method):
     radar, scene, train, test = small_cube
@@ -294,11 +294,7 @@ def test_a_padded_operator_is_the_operator_with_zero_columns(small_radar, rng, c
 
 # `fit`'s default method in the default run; the others (~15 s each) with `-m slow`
 @pytest.mark.parametrize(
-    "method",
-    [
-        "fista",
-        *(pytest.param(m, marks=pytest.mark.slow) for m in ("lsmr", "kaczmarz", "gauss-newton")),
-    ],
+    "method", default_then_slow(["fista"], ["lsmr", "kaczmarz", "gauss-newton"])
 )
 def test_every_solver_on_a_padded_operator_gives_the_unpadded_answer(method, small_cube):
     """The fast path (a support padded to a shared size) against the plain one: the same ρ
