@@ -26,7 +26,14 @@ from ._sharding import gathered, replicated
 from ._solvers import Diverged, History, Outcome, Stop
 from ._solvers._common import DIAGNOSTIC_VIEWS
 from ._solvers.methods import METHODS
-from ._support import Support, as_mask, estimate_support, mask_at, voxels_holding
+from ._support import (
+    Support,
+    as_mask,
+    estimate_support,
+    mask_at,
+    nearest_voxels,
+    voxels_holding,
+)
 from ._synthesis import PointScatterers, RadarData, synthesize
 from ._validation import check_finite, check_instance, check_nonnegative_int, check_positive
 
@@ -308,8 +315,11 @@ def fit(
         solver_options = {**options, "init": options["init"].scaled(1 / scale)}
     if chosen.inr:  # the grid's coordinate scale, with or without a support
         solver_options = {"extent": float(np.max(np.abs(points))), **solver_options}
+    # where the solver's unknowns live: the inverse grid's points (on the support, if any),
+    # or, for least squares with `train_granularity`, the finer grid's points in the support
+    solved_grid, solved_points, solved_on = grid, points, on
     fine = None
-    if chosen.inr and "train_granularity" in options:  # coarse to fine
+    if "train_granularity" in options:
         solver_options = dict(solver_options)
         if (fine_granularity := solver_options.pop("train_granularity")) is not None:
             if not (
@@ -324,7 +334,17 @@ def fit(
             keep = np.ones(len(candidates), bool)
             if mask is not None:
                 keep = mask_at(mask, grid, candidates)
-            solver_options["fine_points"] = candidates[keep]
+            if chosen.inr:  # coarse to fine: the field's last epochs train there
+                solver_options["fine_points"] = candidates[keep]
+            else:  # least squares: those points are the unknowns, from the start
+                if options.get("x0") is not None:
+                    raise ValueError(
+                        "fit: `x0` is a start on the inverse grid; it cannot start a solve "
+                        "on the points of `train_granularity`'s grid (leave one out)."
+                    )
+                solved_grid, solved_points = fine, candidates
+                solved_on = Support.padded(keep.reshape(fine.shape))
+                operator = solved_on.operator(radar, viewpoints, candidates)
     if on is not None and options.get("x0") is not None:  # a start on the whole grid
         x0 = np.asarray(options["x0"]).reshape(-1)
         if x0.shape != (mask.size,):
@@ -346,8 +366,10 @@ def fit(
                     rho = np.where(mask.ravel(), rho, 0)
             else:
                 rho = np.asarray(current) * scale
-                if on is not None:
-                    rho = on.embed(rho)
+                if solved_on is not None:
+                    rho = solved_on.embed(rho)
+                if solved_grid is not grid:
+                    rho = _at_points(rho, solved_grid, points)
             values = jnp.asarray(rho.reshape(grid.shape), jnp.complex64)
             return Scene(values, extent, granularity)
 
@@ -366,10 +388,14 @@ def fit(
     def result(solution) -> FitResult:
         rho = np.asarray(solution.rho) * scale
         stats = dict(solution.stats)
-        if on is not None:  # ρ = 0 outside the support
-            rho = on.embed(rho)
+        if solved_on is not None:  # ρ = 0 outside the support
+            rho = solved_on.embed(rho)
         field = None if solution.field is None else solution.field.scaled(scale)
         trained = None
+        if solved_grid is not grid:  # least squares on the finer grid: its image, sampled
+            values = jnp.asarray(rho.reshape(fine.shape), jnp.complex64)
+            trained = Scene(values, extent, fine.granularity)
+            rho = _at_points(rho, fine, points)
         if fine is not None and "active" in stats:  # the field where it was trained
             where = np.flatnonzero(keep)[stats.pop("active")]
             values = np.zeros(keep.size, np.complex64)
@@ -377,14 +403,16 @@ def fit(
             trained = Scene(jnp.asarray(values.reshape(fine.shape)), extent, fine.granularity)
             # on the inverse grid too, ρ = 0 in voxels that hold no trained point
             rho = np.where(voxels_holding(grid, candidates[where]).ravel(), rho, 0)
-        kept = jnp.asarray(rho if on is None else on.restrict(rho)) / scale  # solver's units
+        # the checks read what was solved, on the points the solver solved for
+        solved = rho if solved_grid is grid else np.asarray(trained.reflectivity).ravel()
+        kept = jnp.asarray(solved if solved_on is None else solved_on.restrict(solved)) / scale
         checked = time.perf_counter()
-        checks = _check(operator, signal, kept, on, points, viewpoints)
+        checks = _check(operator, signal, kept, solved_on, solved_points, viewpoints)
         check_seconds = time.perf_counter() - checked
         stats |= checks
-        if on is not None:
+        if solved_on is not None:
             stats |= {
-                "support_points": on.n_points,
+                "support_points": solved_on.n_points,
                 "support_leak_seconds": check_seconds,
                 **support_stats,
             }
@@ -459,6 +487,16 @@ def _fit_scatterers(
         scene, solution.history, seconds, method, options, solution.stopped, radar,
         viewpoints, stats, points=points,
     )  # fmt: skip
+
+
+def _at_points(values, fine: Scene, points: np.ndarray) -> np.ndarray:
+    """``values`` on ``fine``'s grid (flat) at ``points`` (another grid's, flat): each takes
+    its nearest fine point's value, the very point where the grids nest. For least squares
+    solved on a finer grid this is what RIFT's rendering on the inverse grid is for its
+    field: the solution at the inverse grid's points, not an average around them."""
+    index, inside = next(nearest_voxels(fine, points))
+    assert inside.all(), "the grids span the same box"
+    return np.asarray(values).reshape(fine.shape)[tuple(index.T)]
 
 
 # as many as `estimate_support` backprojects by default, and as RIFT's collapse check reads

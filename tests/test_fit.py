@@ -11,6 +11,7 @@ import pytest
 
 import rift_jax as rj
 from rift_jax._solvers.methods import METHODS
+from rift_jax._support import mask_at
 
 
 @pytest.fixture(scope="module")
@@ -133,8 +134,8 @@ def test_zero_signal_warns(small_cube):
 
 def test_each_method_declares_the_options_its_solver_takes():
     """`fit` checks options against each method's declaration, not its solver's signature:
-    the two must agree (for RIFT, plus the Recipe's fields and `train_granularity`, less
-    what fit passes itself)."""
+    the two must agree (plus `train_granularity`, fit's own, for every grid method; for
+    RIFT the Recipe's fields too, less what fit passes itself)."""
     recipe = {field.name for field in dataclasses.fields(rj.solvers.Recipe)}
     for name, method in METHODS.items():
         solver = method.solve
@@ -142,8 +143,10 @@ def test_each_method_declares_the_options_its_solver_takes():
         parameters = inspect.signature(solver).parameters
         keywords = {p for p, v in parameters.items() if v.kind is v.KEYWORD_ONLY}
         expected = keywords - {"progress", "monitor", "seed"}
+        if not method.scatterers:
+            expected |= {"train_granularity"}
         if method.inr:
-            expected = (expected | fixed | recipe | {"train_granularity"}) - {
+            expected = (expected | fixed | recipe) - {
                 "extent",
                 "fine_points",
             }
@@ -282,6 +285,29 @@ def test_a_monitor_or_time_limit_ends_the_run_with_the_best_so_far(tiny, method,
     for bad in (0, -1.0, float("inf"), "60", True):
         with pytest.raises(ValueError, match="`time_limit` must be a positive finite number"):
             rj.fit(scene, train, time_limit=bad, **common)
+
+
+def test_least_squares_solves_for_the_points_of_a_finer_grid(small_cube):
+    """`train_granularity` puts least squares on the points RIFT's coarse to fine trains
+    last (the finer grid's, in the support), so the two compare on the same points: the
+    solve is exactly the fine grid's on the support carried there, `scene` holds its values
+    at the inverse grid's points (nested: every other fine point), and `predict`
+    synthesises from `trained`."""
+    radar, scene, train, test = small_cube  # data on a 0.5 m grid; inverse grid 1 m
+    options = dict(radar=radar, iterations=5, progress=False)
+    result = rj.fit(scene, train, train_granularity=0.5, **options)
+    assert result.scene.shape == (5, 5, 5) and result.trained.shape == (9, 9, 9)
+    fine = rj.Scene.empty(scene.extent, 0.5)
+    carried = mask_at(result.support, rj.Scene.empty(scene.extent, 1.0), fine.points())
+    direct = rj.fit(scene, train, granularity=0.5, support=carried.reshape(fine.shape), **options)
+    np.testing.assert_array_equal(result.trained.reflectivity, direct.scene.reflectivity)
+    assert result.stats["data_residual"] == direct.stats["data_residual"]
+    every_other = result.trained.reflectivity[::2, ::2, ::2]
+    np.testing.assert_array_equal(result.scene.reflectivity, every_other)
+    expected = rj.synthesize(result.trained, test, radar).signal
+    np.testing.assert_array_equal(result.predict(test).signal, expected)
+    with pytest.raises(ValueError, match="`x0` is a start on the inverse grid"):
+        rj.fit(scene, train, train_granularity=0.5, x0=np.zeros(125), **options)
 
 
 # -- defaults and the checks after a fit ---------------------------------------------------

@@ -527,7 +527,7 @@ def test_coarse_to_fine_explains_what_the_coarse_grid_cannot():
     with pytest.raises(ValueError, match="fine_epochs"):
         rj.fit(scene, train, train_granularity=0.5, fine_epochs=80, **common)
     with pytest.raises(ValueError, match="takes no option"):
-        rj.fit(scene, train, method="lsmr", granularity=1.0, train_granularity=0.5)
+        rj.fit(scene, train, method="points", granularity=1.0, train_granularity=0.5)
 
 
 @pytest.mark.slow  # an option (`train_granularity`), off by default

@@ -49,7 +49,9 @@ class Method:
             )
 
 
-_LEAST_SQUARES = frozenset({"iterations", "tol", "x0"})
+# `train_granularity` is fit's own: it chooses the points a method solves for (for RIFT,
+# its last epochs'), and every grid method takes it
+_LEAST_SQUARES = frozenset({"iterations", "tol", "x0", "train_granularity"})
 _RIFT = frozenset(
     {"model", "recipe", "width", "depth", "init", "fine_epochs", "train_granularity"}
     | {field.name for field in dataclasses.fields(Recipe)}  # each overrides the recipe's
