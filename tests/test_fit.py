@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import rift_jax as rj
+from rift_jax._fit import _at_points
 from rift_jax._solvers.methods import METHODS
 from rift_jax._support import mask_at
 
@@ -295,19 +296,43 @@ def test_least_squares_solves_for_the_points_of_a_finer_grid(small_cube):
     synthesises from `trained`."""
     radar, scene, train, test = small_cube  # data on a 0.5 m grid; inverse grid 1 m
     options = dict(radar=radar, iterations=5, progress=False)
-    result = rj.fit(scene, train, train_granularity=0.5, **options)
+    seen = []  # what a monitor sees: the best so far on the inverse grid, as `scene`
+    result = rj.fit(
+        scene, train, train_granularity=0.5, monitor=lambda *a: seen.append(a[2]()), **options
+    )
     assert result.scene.shape == (5, 5, 5) and result.trained.shape == (9, 9, 9)
+    assert len(seen) == 5 and seen[-1].shape == (5, 5, 5)  # one per iteration
     fine = rj.Scene.empty(scene.extent, 0.5)
     carried = mask_at(result.support, rj.Scene.empty(scene.extent, 1.0), fine.points())
-    direct = rj.fit(scene, train, granularity=0.5, support=carried.reshape(fine.shape), **options)
+    direct_seen = []
+    direct = rj.fit(
+        scene, train, granularity=0.5, support=carried.reshape(fine.shape),
+        monitor=lambda *a: direct_seen.append(a[2]()), **options,
+    )  # fmt: skip
     np.testing.assert_array_equal(result.trained.reflectivity, direct.scene.reflectivity)
+    for monitored, on_fine in zip(seen, direct_seen, strict=True):  # sampled as `scene`
+        np.testing.assert_array_equal(monitored.reflectivity, on_fine.reflectivity[::2, ::2, ::2])
     assert result.stats["data_residual"] == direct.stats["data_residual"]
     every_other = result.trained.reflectivity[::2, ::2, ::2]
     np.testing.assert_array_equal(result.scene.reflectivity, every_other)
     expected = rj.synthesize(result.trained, test, radar).signal
     np.testing.assert_array_equal(result.predict(test).signal, expected)
+    whole = rj.fit(scene, train, support=None, train_granularity=0.5, **options)
+    assert whole.support is None and "support_points" not in whole.stats  # as on one grid
     with pytest.raises(ValueError, match="`x0` is a start on the inverse grid"):
         rj.fit(scene, train, train_granularity=0.5, x0=np.zeros(125), **options)
+
+
+def test_a_finer_grids_values_at_the_inverse_grids_points():
+    """Each inverse grid point takes its nearest fine point's value: that very point where
+    the grids nest, within half a fine spacing per axis where they do not."""
+    fine = rj.Scene.empty(2.0, 0.5)
+    values = np.arange(fine.reflectivity.size)
+    nested = _at_points(values, fine, rj.Scene.empty(2.0, 1.0).points())
+    np.testing.assert_array_equal(nested, values.reshape(fine.shape)[::2, ::2, ::2].ravel())
+    fine, coarse = rj.Scene.empty(2.4, 0.3), rj.Scene.empty(2.4, 0.8).points()
+    nearest = fine.points()[_at_points(np.arange(fine.reflectivity.size), fine, coarse)]
+    assert np.abs(nearest - coarse).max() == pytest.approx(0.1)  # 0.8 m reads 0.9 m
 
 
 # -- defaults and the checks after a fit ---------------------------------------------------
@@ -374,3 +399,5 @@ def test_failed_fit_warnings_name_the_cause():
         warnings.simplefilter("error")
         _warn_if_failed("fista", {"data_residual": 0.9, "coherence": 0.5}, False)  # not RIFT
         _warn_if_failed("rift-n", {"data_residual": 0.9, "coherence": 0.85}, False)
+        # a field that explains the data is no collapse, however sharp against Aᴴy
+        _warn_if_failed("rift-n", {"data_residual": 0.1, "coherence": 0.55}, False)

@@ -520,6 +520,10 @@ def test_coarse_to_fine_explains_what_the_coarse_grid_cannot():
     # above 0.5 (and 1 rad)
     assert fine.evaluate(scene, test)["p_rmse"] < 0.2 < 1.0 < coarse.evaluate(scene, test)["p_rmse"]
     assert fine.residual < 0.1 < 0.5 < coarse.residual
+    # fit's checks read what was trained, on its points: the fine stage explains the data
+    assert fine.stats["data_residual"] < 0.1 < 0.5 < coarse.stats["data_residual"]
+    # its sharp field scores a low cos(|ρ|, |Aᴴy|) (0.55), which warns only where the
+    # data are not explained (test_fit.py: test_failed_fit_warnings_name_the_cause)
     expected = rj.synthesize(fine.trained, test, radar).signal
     np.testing.assert_array_equal(fine.predict(test).signal, expected)
     with pytest.raises(ValueError, match="train_granularity"):
