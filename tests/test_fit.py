@@ -401,3 +401,7 @@ def test_failed_fit_warnings_name_the_cause():
         _warn_if_failed("rift-n", {"data_residual": 0.9, "coherence": 0.85}, False)
         # a field that explains the data is no collapse, however sharp against Aᴴy
         _warn_if_failed("rift-n", {"data_residual": 0.1, "coherence": 0.55}, False)
+        # at 0 dB a perfect fit leaves 0.71: the residual beyond the noise's is what counts
+        _warn_if_failed("rift-n", {"data_residual": 0.72, "coherence": 0.55}, False, 0.707)
+    with pytest.warns(rj.FitWarning, match="smooth-blob"):  # a collapse at 0 dB
+        _warn_if_failed("rift-n", {"data_residual": 0.98, "coherence": 0.55}, False, 0.707)
