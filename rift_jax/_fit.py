@@ -243,8 +243,8 @@ def fit(
       the paper's two-grid protocol). A starting `x0` is given on the whole grid.
 
       Every fit is then checked on the same viewpoints (``stats["data_residual"]``, the
-      relative residual ‖y − Aρ‖/‖y‖ of the returned ρ (for least squares on a finer
-      ``train_granularity``, of what it solved for: `trained`), and ``stats["coherence"]``,
+      relative residual ‖y − Aρ‖/‖y‖ of the returned ρ (with a finer
+      ``train_granularity``, of what was solved there: `trained`), and ``stats["coherence"]``,
       cos(|ρ|, |Aᴴy|) over the reconstruction's points), and a `FitWarning` names the
       likely cause and the option that helps when the fit explains the data no better
       than the zero image (residual ≥ 1), or when a RIFT field is unlike the data's
@@ -331,7 +331,7 @@ def fit(
     # where the solver's unknowns live: the inverse grid's points (on the support, if any),
     # or, for least squares with `train_granularity`, the finer grid's points in the support
     fine_solve = False  # least squares on the finer grid's points (`train_granularity`)
-    solved_on = on  # where the solver's unknowns live, on the grid they come from
+    solved_on = on
     fine = fine_on = None
     if "train_granularity" in options:
         solver_options = dict(solver_options)
