@@ -290,23 +290,28 @@ def fit(
     for name, value in options.items():  # e.g. tol=nan: no comparison with it ever stops
         if isinstance(value, float | np.floating) and not np.isfinite(value):
             raise ValueError(f"fit: option `{name}` must be finite, got {value!r}.")
+    fine_start = options.get("train_granularity") is not None and options.get("x0") is not None
+    if fine_start and not chosen.inr:
+        raise ValueError(
+            "fit: `x0` is a start on the inverse grid; it cannot start a solve on the points "
+            "of `train_granularity`'s grid (leave one out)."
+        )
     check_instance("fit: `viewpoints`", viewpoints, Viewpoints, "rift_jax.Viewpoints")
     check_nonnegative_int("fit: `seed`", seed)
     signal, scale, radar, extent, granularity = _data(
         scene_or_signal, viewpoints, radar, extent, granularity, snr_db, seed
     )
     grid = Scene.empty(extent, granularity)
+    if isinstance(scene_or_signal, RadarData):  # measured data that say their noise
+        snr_db = scene_or_signal.snr_db
     if chosen.scatterers:
-        if isinstance(scene_or_signal, RadarData):  # measured data that say their noise
-            snr_db = scene_or_signal.snr_db
         return _fit_scatterers(
             method, signal, scale, viewpoints, radar, grid, snr_db, support, monitor,
             time_limit, progress, options,
         )  # fmt: skip
     start = time.perf_counter()  # the support check counts in the reconstruction's time
     # the residual a perfect fit leaves on data of a known SNR: ‖n‖/‖s + n‖
-    known = scene_or_signal.snr_db if isinstance(scene_or_signal, RadarData) else snr_db
-    noise_floor = 0.0 if known is None else 1 / np.sqrt(1 + 10 ** (known / 10))
+    noise_floor = 0.0 if snr_db is None else 1 / np.sqrt(1 + 10 ** (snr_db / 10))
     points = grid.points()
     operator = grt_operator(radar, viewpoints, points)
     support_stats = {}  # where a support's own cost goes: the estimate, the leak check
@@ -352,11 +357,6 @@ def fit(
             if chosen.inr:  # coarse to fine: the field's last epochs train there
                 solver_options["fine_points"] = candidates[keep]
             else:  # least squares: those points are the unknowns, from the start
-                if options.get("x0") is not None:
-                    raise ValueError(
-                        "fit: `x0` is a start on the inverse grid; it cannot start a solve "
-                        "on the points of `train_granularity`'s grid (leave one out)."
-                    )
                 fine_solve, solved_on = True, fine_on
                 operator = _operator_on(fine_on, radar, viewpoints, candidates)
     if on is not None and options.get("x0") is not None:  # a start on the whole grid
