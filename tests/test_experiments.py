@@ -19,6 +19,7 @@ import rift_jax as rj
 from experiments import (
     complex_scenes,
     mismatch,
+    replay,
     rift_ideas,
     runner,
     simple_scenes,
@@ -542,3 +543,73 @@ def test_rift_ideas_run_on_their_stress_grid_cells_data():
         assert (plain.n_train, plain.seed) == (run.n_train, run.seed)
         extra = rift_ideas.IDEAS.get(variant, {})
         assert run.options == plain.options | extra
+
+
+def test_replay_repeats_the_grids_own_runs_with_the_options_added():
+    """A replayed cell runs the stress grid's own run of the method there (scene, views,
+    noise, seed) with the options added; a cell the grid lacks, or a method it does not
+    run, is refused by name."""
+    cfg = stability.SCALES["default"]
+    cells = [replay.parse_cell("cube:30:none"), replay.parse_cell("parking_lot:100:-10")]
+    assert cells == [("cube", 30, None), ("parking_lot", 100, -10.0)]
+    asked = replay.runs(cfg, "rift-n", cells, {"loss": "mse"})
+    grid = {(r.scene, r.label): r for r in stability.runs(cfg)}
+    assert len(asked) == 2
+    for run in asked:
+        plain = grid[run.scene, run.label]
+        assert plain.method == "rift-n" and (plain.n_train, plain.seed) == (run.n_train, run.seed)
+        assert run.options == plain.options | {"loss": "mse"}
+    with pytest.raises(ValueError, match="has no cell cube:20:none"):
+        replay.runs(cfg, "rift-n", [("cube", 20, None)], {})
+    with pytest.raises(ValueError, match="`--method` must be one of"):
+        replay.runs(cfg, "rift-x", cells, {})
+    with pytest.raises(ValueError, match="SCENE:VIEWS:NOISE"):
+        replay.parse_cell("cube:30")
+
+
+def test_replay_judges_a_replayed_run_with_the_grids_other_methods():
+    """The replay stands beside the grid's own run and FISTA's, and fails by the grid's
+    rule against the other methods of its cell (its own method's grid run left out)."""
+    base = {"scene": "cube", "n_train": 30, "options": {}, "seed": 1, "residual": 0.9,
+            "m_cos": 0.5, "t_iou": 0.5, "p_rmse": 1.0}  # fmt: skip
+    grid = [base | {"method": m, "m_ssim": v} for m, v in
+            (("rift-n", 0.05), ("fista", 0.6), ("lsmr", 0.5), ("kaczmarz", 0.4))]  # fmt: skip
+    for row in grid:
+        row["noise"] = "noise-free"
+    good, bad = (
+        base | {"method": "rift-n", "m_ssim": v, "noise": "noise-free"} for v in (0.7, 0.2)
+    )
+    judged = replay.compare([good, bad], grid, "rift-n")
+    assert [(r["grid"], r["fista"]) for r in judged] == [(0.05, 0.6)] * 2
+    assert judged[0]["failed"] == ""  # judged, and passed: its cell's median is 0.55
+    assert "half the cell's median" in judged[1]["failed"]
+    assert replay.compare([good], [], "rift-n")[0]["failed"] is None  # no grid: not judged
+
+
+@pytest.mark.slow
+def test_replay_writes_its_report_beside_the_grid(tmp_path):
+    """End to end at the quick scale: one FISTA run replayed with a smaller budget, its
+    report beside a grid's rows for the cell."""
+    cfg = stability.SCALES["quick"]
+    run = replay.runs(cfg, "fista", [("random-0", 6, None)], {})[0]
+    grid = tmp_path / "grid"
+    grid.mkdir()
+    row = {"scene": "random-0", "n_train": 6, "options": {}, "seed": run.seed,
+           "residual": 0.9, "m_cos": 0.5, "t_iou": 0.5, "p_rmse": 1.0, "method": "fista",
+           "m_ssim": 0.123}  # fmt: skip
+    rows = [row, row | {"method": "rift-n"}]
+    (grid / "results.json").write_text(json.dumps({"scale": "quick", "rows": rows}))
+    out = tmp_path / "out"
+    argv = ["--scale", "quick", "--method", "fista", "--options", '{"iterations": 3}',
+            "--cells", "random-0:6:none", "--grid", str(grid), "--out", str(out),
+            "--no-progress"]  # fmt: skip
+    results = replay.cli(argv)
+    (done,) = results["rows"]
+    assert done["options"] == run.options | {"iterations": 3} and done["seed"] == run.seed
+    assert np.isfinite(done["m_ssim"])
+    text = (out / "results.md").read_text()
+    assert "| random-0 | 6 | noise-free |" in text and "| 0.123 | 0.123 |" in text
+    with pytest.raises(SystemExit):  # not a JSON object: refused before any run
+        replay.cli(["--scale", "quick", "--options", "[1]", "--cells", "random-0:6:none"])
+    with pytest.raises(SystemExit):  # a grid of another scale: its cells are other cells
+        replay.cli(["--scale", "default", "--grid", str(grid), "--cells", "cube:30:none"])
