@@ -28,79 +28,115 @@ import json
 from pathlib import Path
 
 from . import stability
-from .runner import Run, check_writable, environment_line, table, write_atomic
+from .runner import Run, check_writable, environment_line, table, write_atomic, write_json
 
 GRIDS = Path("docs/results")  # the committed grids: stability_SCALE
+# options a replay may not change: they would move a run to another cell's data
+FIXED = ("snr_db", "seed")
+
+
+@dataclasses.dataclass(frozen=True)
+class Config(stability.Config):
+    """The stress grid's config, and what is replayed (so that ``--resume`` checks it).
+    ``scenes`` holds only the replayed cells' scenes (the ones built); the runs themselves
+    come from the whole grid's config, whose rotation gives each cell its seed."""
+
+    replay_method: str = "rift-n"
+    replay_options: dict = dataclasses.field(default_factory=dict)
 
 
 def parse_cell(text: str) -> tuple[str, int, float | None]:
     """``"cube:30:none"`` → ("cube", 30, None); ``"cube:30:-10"`` → ("cube", 30, -10.0)."""
-    parts = text.split(":")
     try:
-        scene, views, noise = parts
+        scene, views, noise = text.split(":")
         return scene, int(views), None if noise == "none" else float(noise)
     except ValueError:
         raise ValueError(
-            f"replay: `--cells` entries are SCENE:VIEWS:NOISE (NOISE an SNR in dB or 'none'), "
-            f"got {text!r}."
+            f"`--cells` entries are SCENE:VIEWS:NOISE (NOISE an SNR in dB or 'none'), got {text!r}."
         ) from None
 
 
 def runs(cfg: stability.Config, method: str, cells, extra: dict) -> list[Run]:
-    """The grid's runs of ``method`` in ``cells``, each with ``extra`` options added."""
+    """The grid's runs of ``method`` in ``cells`` (every seed the grid gives a cell), each
+    with ``extra`` options added."""
     if method not in cfg.methods:
-        raise ValueError(f"replay: `--method` must be one of {list(cfg.methods)}, got {method!r}.")
-    asked = set(cells)
-    out = []
+        raise ValueError(f"`--method` must be one of {list(cfg.methods)}, got {method!r}.")
+    if fixed := sorted(set(extra) & set(FIXED)):
+        raise ValueError(f"`--options` may not set {fixed}: they choose the cell's data.")
+    asked, found, out = set(cells), set(), []
     for run in stability.runs(cfg):
         cell = (run.scene, run.n_train, run.options.get("snr_db"))
         if run.method == method and cell in asked:
             out.append(dataclasses.replace(run, options=dict(run.options) | extra))
-            asked.discard(cell)
-    if asked:
-        missing = ", ".join(f"{s}:{v}:{'none' if n is None else f'{n:g}'}" for s, v, n in asked)
+            found.add(cell)
+    if missing := asked - found:
+        names = ", ".join(f"{s}:{v}:{'none' if n is None else f'{n:g}'}" for s, v, n in missing)
         raise ValueError(
-            f"replay: the {cfg.scenes} × views {cfg.views} × SNR {cfg.snrs} grid has no cell "
-            f"{missing} (`--cells`)."
+            f"`--cells`: the {cfg.scenes} × views {cfg.views} × SNR {cfg.snrs} grid has no "
+            f"cell {names}."
         )
     return out
 
 
+def load_grid(grid: Path, cfg: stability.Config) -> list[dict]:
+    """The rows of the stress grid in ``grid`` (each with its seed and ``noise``), after
+    checking that it ran ``cfg`` with seed 0: the cells' data the replay draws."""
+    path = grid / "results.json"
+    try:
+        saved = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as error:
+        raise ValueError(f"`--grid`: cannot read {path}: {error}") from None
+    config = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    if saved.get("experiment") != "stability" or saved.get("seed") != 0:
+        raise ValueError(f"`--grid`: {path} is not a stress grid run with seed 0.")
+    if changed := sorted(k for k in config if saved.get("config", {}).get(k) != config[k]):
+        raise ValueError(
+            f"`--grid`: {path} ran another config than this scale's ({', '.join(changed)} "
+            "differ): its cells hold other data."
+        )
+    rows = [{"seed": saved["seed"]} | row for row in saved["rows"]]
+    for row in rows:
+        row["noise"] = stability.noise_name(row["options"].get("snr_db"))
+    return rows
+
+
 def compare(rows: list[dict], grid_rows: list[dict], method: str) -> list[dict]:
     """Each replayed row with ``grid`` (the grid's own m-SSIM of the run, or None),
-    ``fista`` (FISTA's in the cell, or None) and ``failed`` (the grid's rule, judged with
-    the grid's other methods in the cell; None where the grid has none)."""
+    ``fista`` (FISTA's in the cell, or None) and ``failed`` (the grid's rule; None where the
+    grid has none of the cell). A cell's replays are judged together with the grid's other
+    methods there: the replays stand in for the grid's own runs of the method."""
+    judged = {}
+    for key in {stability._cell(row) for row in rows}:
+        others = [dict(r) for r in grid_rows if stability._cell(r) == key and r["method"] != method]
+        mine = [dict(r) for r in rows if stability._cell(r) == key]
+        if others:
+            for row in stability.judge(others + mine)[len(others) :]:
+                judged[key, row["seed"]] = row["failed"] or ""
     out = []
     for row in rows:
-        cell = [r for r in grid_rows if stability._cell(r) == stability._cell(row)]
-        own = [r for r in cell if r["method"] == method and r["seed"] == row["seed"]]
-        fista = [r for r in cell if r["method"] == "fista" and r["seed"] == row["seed"]]
-        others = [dict(r) for r in cell if r["method"] != method]
-        failed = None
-        if others:
-            judged = stability.judge(others + [dict(row)])
-            failed = judged[-1]["failed"] or ""
+        same = [r for r in grid_rows if stability._cell(r) == stability._cell(row)
+                and r["seed"] == row["seed"]]  # fmt: skip
+        own = [r["m_ssim"] for r in same if r["method"] == method]
+        fista = [r["m_ssim"] for r in same if r["method"] == "fista"]
         out.append(
             row
             | {
-                "grid": own[0]["m_ssim"] if own else None,
-                "fista": fista[0]["m_ssim"] if fista else None,
-                "failed": failed,
+                "grid": own[0] if own else None,
+                "fista": fista[0] if fista else None,
+                "failed": judged.get((stability._cell(row), row["seed"])),
             }
         )
     return out
 
 
-def report(results, volumes, figures, cfg, out: Path, grid: Path | None, method: str) -> None:
-    del volumes, figures  # no figures
+def report(results, cfg, out: Path, grid: Path | None, grid_rows: list[dict]) -> None:
+    """results.md: each replay beside the grid's own run and FISTA's; the verdicts go into
+    the rows of ``results`` too (results.json is written before each report)."""
     rows = [dict(r) | {"noise": stability.noise_name(r["options"].get("snr_db"))}
             for r in results["rows"]]  # fmt: skip
-    grid_rows = []
-    if grid is not None:
-        grid_rows = json.loads((grid / "results.json").read_text())["rows"]
-        for r in grid_rows:
-            r["noise"] = stability.noise_name(r["options"].get("snr_db"))
-    rows = compare(rows, grid_rows, method)
+    rows = compare(rows, grid_rows, cfg.replay_method)
+    for saved, row in zip(results["rows"], rows, strict=True):
+        saved.update({key: row[key] for key in ("grid", "fista", "failed")})
 
     def number(value):
         return "–" if value is None else f"{value:.3f}"
@@ -112,6 +148,7 @@ def report(results, volumes, figures, cfg, out: Path, grid: Path | None, method:
         ("scene", lambda r: r["scene"]),
         ("views", lambda r: str(r["n_train"])),
         ("noise", lambda r: r["noise"]),
+        ("seed", lambda r: str(r["seed"])),
         ("m-SSIM", lambda r: number(r["m_ssim"])),
         ("residual", lambda r: number(r["residual"])),
         ("the grid's run", lambda r: number(r["grid"])),
@@ -119,13 +156,13 @@ def report(results, volumes, figures, cfg, out: Path, grid: Path | None, method:
         ("fails", verdict),
         ("s", lambda r: f"{r['wall_seconds']:.0f}"),
     ]
-    extra = results["config"].get("replay_options", {})
     lines = [
         f"# Stress-grid cells replayed, scale `{results['scale']}`",
         "",
-        f"{stability.LABELS[method]} on each cell's own data with `{json.dumps(extra)}` added to "
-        f"the grid's options; beside it the grid's own run and FISTA's from "
-        f"{grid if grid is not None else '(no grid given)'}.",
+        f"{stability.LABELS[cfg.replay_method]} on each cell's own data with "
+        f"`{json.dumps(cfg.replay_options)}` added to the grid's options; beside it the grid's "
+        f"own run and FISTA's from {grid if grid is not None else '(no grid given)'}. A "
+        "replay fails by the grid's rule, judged with the grid's other methods in its cell.",
         "",
         table(rows, columns),
         "",
@@ -135,12 +172,40 @@ def report(results, volumes, figures, cfg, out: Path, grid: Path | None, method:
     write_atomic(out / "results.md", "\n".join(lines))
 
 
-@dataclasses.dataclass(frozen=True)
-class Config(stability.Config):
-    """The stress grid's config, with what is replayed (so that ``--resume`` checks it)."""
+def main(
+    cfg: Config,
+    cells,
+    *,
+    out: Path,
+    grid: Path | None = None,
+    scale: str = "custom",
+    resume: bool = False,
+    progress: bool = True,
+) -> dict:
+    """Replay ``cfg.replay_method``'s runs of ``cells`` with ``cfg.replay_options`` added;
+    the results dict as written to ``out/results.json``."""
+    base = grid_config(cfg)
+    asked = runs(base, cfg.replay_method, cells, cfg.replay_options)
+    grid_rows = load_grid(grid, base) if grid is not None else []
+    # the scenes built, in the grid's order: the order `--cells` names them in would make a
+    # resumed replay's config differ from its first
+    order = {scene: k for k, scene in enumerate(base.scenes)}
+    scenes = tuple(sorted({run.scene for run in asked}, key=order.get))
+    results = stability.on_the_grid(
+        "replay", dataclasses.replace(cfg, scenes=scenes), asked,
+        lambda res, vol, fig, cfg_, out_: report(res, cfg_, out_, grid, grid_rows),
+        out=out, scale=scale, seed=0, resume=resume, progress=progress,
+    )  # fmt: skip
+    write_json(Path(out) / "results.json", results)  # with the last report's verdicts
+    print(f"wrote results.md, results.json and reconstructions.npz to {out}/")
+    return results
 
-    replay_method: str = "rift-n"
-    replay_options: dict = dataclasses.field(default_factory=dict)
+
+def grid_config(cfg: Config) -> stability.Config:
+    """The stress grid's own config within ``cfg``."""
+    return stability.Config(
+        **{f.name: getattr(cfg, f.name) for f in dataclasses.fields(stability.Config)}
+    )
 
 
 def cli(argv=None) -> dict:
@@ -166,39 +231,27 @@ def cli(argv=None) -> dict:
         parser.error(f"argument --options: not JSON: {error}")
     if not isinstance(extra, dict):
         parser.error(f"argument --options: must be a JSON object, got {args.options!r}")
-    try:
-        cells = [parse_cell(text) for text in args.cells]
-        asked = runs(stability.SCALES[args.scale], args.method, cells, extra)
-    except ValueError as error:
-        parser.error(str(error))
+    base = stability.SCALES[args.scale]
     grid = args.grid
     if grid is None and (GRIDS / f"stability_{args.scale}" / "results.json").exists():
         grid = GRIDS / f"stability_{args.scale}"
-    if grid is not None:
-        if not (grid / "results.json").exists():
-            parser.error(f"argument --grid: {grid / 'results.json'} does not exist")
-        scale = json.loads((grid / "results.json").read_text()).get("scale")
-        if scale != args.scale:
-            parser.error(f"argument --grid: {grid} holds the {scale!r} scale, not {args.scale!r}")
+    try:  # every argument checked before any run
+        cells = [parse_cell(text) for text in args.cells]
+        runs(base, args.method, cells, extra)
+        if grid is not None:
+            load_grid(grid, base)
+    except ValueError as error:
+        parser.error(str(error))
     out = args.out or Path("results") / f"replay_{args.scale}"
     try:
         check_writable(out)
     except OSError as error:
         parser.error(f"argument --out: cannot write results to {out}: {error}")
-    base = stability.SCALES[args.scale]
-    cfg = Config(
-        **{f.name: getattr(base, f.name) for f in dataclasses.fields(base)},
-        replay_method=args.method,
-        replay_options=extra,
-    )
-    cfg = dataclasses.replace(cfg, scenes=tuple(dict.fromkeys(run.scene for run in asked)))
-    results = stability.on_the_grid(
-        "replay", cfg, asked,
-        lambda res, vol, fig, cfg_, out_: report(res, vol, fig, cfg_, out_, grid, args.method),
-        out=out, scale=args.scale, seed=0, resume=args.resume, progress=not args.no_progress,
+    cfg = Config(**dataclasses.asdict(base), replay_method=args.method, replay_options=extra)
+    return main(
+        cfg, cells, out=out, grid=grid, scale=args.scale, resume=args.resume,
+        progress=not args.no_progress,
     )  # fmt: skip
-    print(f"wrote results.md, results.json and reconstructions.npz to {out}/")
-    return results
 
 
 if __name__ == "__main__":

@@ -565,25 +565,67 @@ def test_replay_repeats_the_grids_own_runs_with_the_options_added():
         replay.runs(cfg, "rift-x", cells, {})
     with pytest.raises(ValueError, match="SCENE:VIEWS:NOISE"):
         replay.parse_cell("cube:30")
+    several = dataclasses.replace(cfg, seeds_per_cell=None)  # every seed of a cell
+    assert {run.seed for run in replay.runs(several, "fista", cells[:1], {})} == {0, 1, 2}
 
 
 def test_replay_judges_a_replayed_run_with_the_grids_other_methods():
-    """The replay stands beside the grid's own run and FISTA's, and fails by the grid's
-    rule against the other methods of its cell (its own method's grid run left out)."""
-    base = {"scene": "cube", "n_train": 30, "options": {}, "seed": 1, "residual": 0.9,
-            "m_cos": 0.5, "t_iou": 0.5, "p_rmse": 1.0}  # fmt: skip
-    grid = [base | {"method": m, "m_ssim": v} for m, v in
-            (("rift-n", 0.05), ("fista", 0.6), ("lsmr", 0.5), ("kaczmarz", 0.4))]  # fmt: skip
-    for row in grid:
-        row["noise"] = "noise-free"
-    good, bad = (
-        base | {"method": "rift-n", "m_ssim": v, "noise": "noise-free"} for v in (0.7, 0.2)
-    )
+    """The replay stands beside the grid's own run and FISTA's on the same seed, and fails
+    by the grid's rule against the other methods of its cell, its own method's grid runs
+    left out (it stands in for them)."""
+    base = {"options": {}, "residual": 0.9, "m_cos": 0.5, "t_iou": 0.5, "p_rmse": 1.0,
+            "noise": "noise-free"}  # fmt: skip
+    grid = [
+        base | {"scene": "cube", "n_train": n, "seed": seed, "method": m, "m_ssim": v}
+        for n in (30, 100)
+        for seed, m, v in (
+            (1, "rift-n", 0.95),
+            (2, "rift-n", 0.99),
+            (1, "fista", 0.6),
+            (1, "lsmr", 0.5),
+            (1, "kaczmarz", 0.4),
+        )  # fmt: skip
+    ]
+    good = base | {"scene": "cube", "n_train": 30, "seed": 1, "method": "rift-n", "m_ssim": 0.7}
+    bad = good | {"n_train": 100, "m_ssim": 0.3}
     judged = replay.compare([good, bad], grid, "rift-n")
-    assert [(r["grid"], r["fista"]) for r in judged] == [(0.05, 0.6)] * 2
-    assert judged[0]["failed"] == ""  # judged, and passed: its cell's median is 0.55
-    assert "half the cell's median" in judged[1]["failed"]
+    assert [(r["grid"], r["fista"]) for r in judged] == [(0.95, 0.6)] * 2  # seed 1's runs
+    assert judged[0]["failed"] == ""  # judged, and passed
+    # 0.3 is above half the median of (0.6, 0.5, 0.4, 0.3) but below 0.5 where the best is
+    # 0.6: it passes; with the grid's own 0.95 and 0.99 in the cell it would fail
+    assert judged[1]["failed"] == ""
+    worse = replay.compare([bad | {"m_ssim": 0.2}], grid, "rift-n")[0]
+    assert "half the cell's median" in worse["failed"]
     assert replay.compare([good], [], "rift-n")[0]["failed"] is None  # no grid: not judged
+
+
+def test_replay_refuses_bad_arguments_by_name(tmp_path, capsys):
+    """Options that choose the cell's data, a grid of another scale or seed, and options
+    that are not a JSON object are refused before any run, naming the argument."""
+    cfg = stability.SCALES["quick"]
+    with pytest.raises(ValueError, match="may not set"):
+        replay.runs(cfg, "fista", [("random-0", 6, None)], {"snr_db": 3.0})
+    grid = tmp_path / "grid"
+    grid.mkdir()
+    config = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    saved = {"experiment": "stability", "seed": 0, "config": config, "rows": []}
+    (grid / "results.json").write_text(json.dumps(saved))
+    assert replay.load_grid(grid, cfg) == []
+    with pytest.raises(ValueError, match="another config than this scale's"):
+        replay.load_grid(grid, stability.SCALES["default"])
+    (grid / "results.json").write_text(json.dumps(saved | {"seed": 1}))
+    with pytest.raises(ValueError, match="with seed 0"):
+        replay.load_grid(grid, cfg)
+    cells = ["--cells", "random-0:6:none", "--out", str(tmp_path / "out")]
+    for argv, named in (
+        (["--options", "[1]"], "argument --options"),
+        (["--options", '{"seed": 3}'], "may not set"),
+        (["--scale", "quick", "--grid", str(grid)], "`--grid`"),
+    ):
+        with pytest.raises(SystemExit):
+            replay.cli(["--scale", "quick", *argv, *cells])
+        assert named in capsys.readouterr().err
+    assert not (tmp_path / "out" / "results.json").exists()
 
 
 @pytest.mark.slow
@@ -598,7 +640,9 @@ def test_replay_writes_its_report_beside_the_grid(tmp_path):
            "residual": 0.9, "m_cos": 0.5, "t_iou": 0.5, "p_rmse": 1.0, "method": "fista",
            "m_ssim": 0.123}  # fmt: skip
     rows = [row, row | {"method": "rift-n"}]
-    (grid / "results.json").write_text(json.dumps({"scale": "quick", "rows": rows}))
+    config = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    saved = {"experiment": "stability", "seed": 0, "config": config, "rows": rows}
+    (grid / "results.json").write_text(json.dumps(saved))
     out = tmp_path / "out"
     argv = ["--scale", "quick", "--method", "fista", "--options", '{"iterations": 3}',
             "--cells", "random-0:6:none", "--grid", str(grid), "--out", str(out),
@@ -609,7 +653,6 @@ def test_replay_writes_its_report_beside_the_grid(tmp_path):
     assert np.isfinite(done["m_ssim"])
     text = (out / "results.md").read_text()
     assert "| random-0 | 6 | noise-free |" in text and "| 0.123 | 0.123 |" in text
-    with pytest.raises(SystemExit):  # not a JSON object: refused before any run
-        replay.cli(["--scale", "quick", "--options", "[1]", "--cells", "random-0:6:none"])
-    with pytest.raises(SystemExit):  # a grid of another scale: its cells are other cells
-        replay.cli(["--scale", "default", "--grid", str(grid), "--cells", "cube:30:none"])
+    assert (out / "results.json").exists() and json.loads((out / "results.json").read_text())[
+        "rows"
+    ][0]["fista"] == pytest.approx(0.123)  # the verdicts are in results.json too
