@@ -302,6 +302,14 @@ def fit(
         scene_or_signal, viewpoints, radar, extent, granularity, snr_db, seed
     )
     grid = Scene.empty(extent, granularity)
+    fine_granularity = options.get("train_granularity")
+    if fine_granularity is not None and not (  # checked before a support estimate's cost
+        isinstance(fine_granularity, int | float) and 0 < fine_granularity < granularity
+    ):
+        raise ValueError(
+            "fit: `train_granularity` must be finer than the inverse grid's "
+            f"granularity ({granularity} m) and > 0, got {fine_granularity!r}."
+        )
     if isinstance(scene_or_signal, RadarData):  # measured data that say their noise
         snr_db = scene_or_signal.snr_db
     if chosen.scatterers:
@@ -341,13 +349,6 @@ def fit(
     if "train_granularity" in options:
         solver_options = dict(solver_options)
         if (fine_granularity := solver_options.pop("train_granularity")) is not None:
-            if not (
-                isinstance(fine_granularity, int | float) and 0 < fine_granularity < granularity
-            ):
-                raise ValueError(
-                    "fit: `train_granularity` must be finer than the inverse grid's "
-                    f"granularity ({granularity} m) and > 0, got {fine_granularity!r}."
-                )
             fine = Scene.empty(extent, fine_granularity)
             candidates = fine.points()
             keep = np.ones(len(candidates), bool)
