@@ -20,6 +20,7 @@ from jax.extend.core import ClosedJaxpr, Jaxpr
 
 import rift_jax as rj
 from rift_jax import grt, solvers
+from rift_jax._solvers import points as P
 
 HIGHEST = (jax.lax.Precision.HIGHEST, jax.lax.Precision.HIGHEST)
 
@@ -147,6 +148,21 @@ def test_field_render(problem):
         assert_exact(eqx.filter_make_jaxpr(field.render)(xyz)[0], name)
         alone = eqx.filter_make_jaxpr(lambda p, m=model: jax.vmap(m)(p))(xyz)[0]
         assert_exact(alone, f"{name} alone")
+
+
+def test_points_lattice_score(problem, x64):
+    """The points method's lattice score multiplies in complex64 (it only ranks where Newton
+    starts): it too asks for full precision. Without it an H200 ran the score's product in
+    TensorFloat-32, more than 1e-5 off the exact score (test_points' any-radar test)."""
+    radar, viewpoints, *_ = problem
+    geometry = P.Geometry.of(radar, viewpoints)
+    tx, rx, k = geometry.arrays()
+    shape = (len(viewpoints), radar.n_frequencies, radar.n_tx, radar.n_rx)
+    residual, probes = jnp.zeros(shape, jnp.complex128), jnp.zeros((4, 3))
+    jaxpr = jax.make_jaxpr(lambda p, r: P._on_lattice("coherent", p, r, tx, rx, k, geometry.law))(
+        probes, residual
+    )
+    assert_exact(jaxpr, "the lattice's coherent score")
 
 
 def lowered_products(text: str) -> list[str]:
