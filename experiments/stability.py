@@ -68,7 +68,7 @@ LABELS = {
 }
 BASELINE = "kaczmarz"  # the paper's: reported, its failures not counted
 DEFAULTS = {"support": "auto"}
-RIFT_DEFAULTS = {"prune": 0.05, "patience": 10, "epoch_views": 100}
+RIFT_DEFAULTS = {"loss": "mse", "prune": 0.05, "patience": 10, "epoch_views": 100}
 """`fit`'s and `Recipe`'s defaults, named in each run's options so that a results file says
 what it ran even after a default changes (tests/test_experiments.py checks they are still
 the library's)."""

@@ -2,9 +2,9 @@
 
 Each is the mean over every entry (frequency × TX × RX × viewpoint) of an elementwise term,
 so a loss does not grow with the batch; each takes complex arrays of equal shape and returns
-a real scalar. `paper_loss` is the paper's; `robust_loss` is the default, and why it is
-the default is in docs/rift.md (the loss study); `complex_mse` is the coherent
-least-squares term.
+a real scalar. `paper_loss` is the paper's; `complex_mse`, the coherent least-squares
+term, is the default; `robust_loss` was the default before it. Why is in docs/rift.md
+(the loss study, and complex MSE against the robust loss on the stress grid).
 """
 
 from __future__ import annotations
@@ -45,7 +45,9 @@ def robust_loss(
     *,
     alpha_phase: float = 1.0,
 ) -> Float[Array, ""]:
-    """The default loss, (mean| |P| − |S| | + α·mean(|S|·(1 − cos(∠P − ∠S)))) / mean|S|.
+    """(mean| |P| − |S| | + α·mean(|S|·(1 − cos(∠P − ∠S)))) / mean|S|: the default before
+    `complex_mse`, which fits the data coherently where this matches |P| to |S| entry by
+    entry, the noise's magnitude included.
 
     - The phase term is smooth and periodic: 1 − cos Δφ = ½|u_P − u_S|², the squared
       distance between unit phasors u = z/|z|, computed without angles (no jump at ±π).
@@ -70,7 +72,9 @@ def complex_mse(
     pred: Complex[Array, " *shape"], target: Complex[Array, " *shape"]
 ) -> Float[Array, ""]:
     """mean|P − S|² / mean|S|² (a zero target gives mean|P|²): the coherent least-squares
-    data term, relative to the data's power."""
+    data term, relative to the data's power; the default. A zero prediction scores 1, so a
+    run that ends near 1 has fitted nothing (`rift_jax.solvers.diagnose`'s "fits
+    nothing")."""
     _check("complex_mse", pred, target)
     power = jnp.mean(jnp.abs(target) ** 2)
     return jnp.mean(jnp.abs(pred - target) ** 2) / jnp.where(power > 0, power, 1.0)

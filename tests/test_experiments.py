@@ -230,9 +230,11 @@ def test_resume_keeps_runs_from_before_the_experiment_gained_settings(
 def test_the_experiments_name_rifts_patience():
     """`fit` stops RIFT once converged (patience 10), prunes (0.05) and estimates a support
     by default; the experiments say what they do (every step, or the paper scale's 10; the
-    whole grid or the support), so their committed results stay what the code makes, and
-    rows from before name none: they ran every epoch, on every point."""
+    whole grid or the support; the loss), so their committed results stay what the code
+    makes, and rows from before name none: they ran every epoch, on every point, with the
+    robust loss."""
     assert runner.rift_options(100, 200)["patience"] is None
+    assert runner.rift_options(100, 200)["loss"] == rj.solvers.Recipe().loss
     plain = runner.Budget(1, 4)
     assert plain.rift(100)["patience"] is None and plain.rift(100)["prune"] is None
     assert plain.ls()["support"] is None and plain.fista()["support"] is None
@@ -240,11 +242,11 @@ def test_the_experiments_name_rifts_patience():
     assert paper["patience"] == 10 and paper["prune"] == 0.05 and paper["support"] == "auto"
     stop = rj.solvers.Stop(rj.solvers.Outcome.BUDGET, 3).to_json()
     row = {"scene": "s", "run": "RIFT(N)-1", "method": "rift-n", "iterations": 3}
-    named = {"epochs": 3, "patience": 10, "prune": 0.05, "support": "auto"}
+    named = {"epochs": 3, "patience": 10, "prune": 0.05, "loss": "mse", "support": "auto"}
     row |= {"stopped": stop, "seed": 0, "options": named}
     assert runner._upgrade(row, seed=0) == row
     older = row | {"options": {"epochs": 3}}
-    expected = {"epochs": 3, "patience": None, "prune": None, "support": None}
+    expected = {"epochs": 3, "patience": None, "prune": None, "loss": "robust", "support": None}
     assert runner._upgrade(older, seed=0)["options"] == expected
     lsmr = row | {"method": "lsmr", "options": {"iterations": 30, "support": "auto"}}
     lsmr |= {"stopped": rj.solvers.Stop(rj.solvers.Outcome.BUDGET, 30).to_json()}
@@ -456,6 +458,7 @@ def test_stability_runs_every_method_at_its_defaults_on_shared_data():
     assert stability.DEFAULTS == {"support": "auto"}
     recipe = rj.solvers.Recipe()
     assert stability.RIFT_DEFAULTS == {
+        "loss": recipe.loss,
         "prune": recipe.prune,
         "patience": recipe.patience,
         "epoch_views": recipe.epoch_views,

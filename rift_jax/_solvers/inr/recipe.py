@@ -16,8 +16,9 @@ from ..._validation import check_nonnegative_int, check_positive, check_positive
 class Recipe:
     """How an INR is trained. ``Recipe()`` is the default; ``RECIPES["paper"]`` the paper's.
 
-    - `loss`: ``"robust"`` (default), ``"paper"`` (see `rift_jax.losses`), or a callable
-      ``loss(pred, target) -> scalar``.
+    - `loss`: ``"mse"`` (default: complex MSE), ``"robust"`` (the default until complex
+      MSE did better on the stress grid: docs/rift.md), ``"paper"`` (see
+      `rift_jax.losses`), or a callable ``loss(pred, target) -> scalar``.
     - `epochs`: how many epochs, each one or more passes over the training viewpoints
       (`epoch_views`).
     - `learning_rate`, `weight_decay`, `adam_eps`: `optax.adamw`'s (weight decay applies to
@@ -68,7 +69,7 @@ class Recipe:
       learning rate (see `rift`, "Collapse"). 0: never.
     """
 
-    loss: str | Callable = "robust"
+    loss: str | Callable = "mse"
     epochs: int = 100
     learning_rate: float | None = None
     weight_decay: float = 1e-2

@@ -9,6 +9,7 @@ import warnings
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
+from ..._losses import complex_mse
 from ..._models import AbstractINR, Field
 from ..._operator import GRTOperator
 from .._solution import Monitor, Outcome, Solution
@@ -81,11 +82,12 @@ def rift(
 
     **Collapse.** After training, the run is checked for the ways an INR fails without a
     non-finite value (`diagnose`): a global gain that drifted to zero, a field whose signals
-    carry almost none of the data's energy, a near-constant field, or a loss that never
-    fell from its first epoch (not checked for an `init` warm start, which may begin
-    converged). A collapsed run is retried up to the recipe's `retries` times, each from a
-    fresh initialisation (seed + 1000·k; an `init` field is kept) at half the previous
-    learning rate. ``stats["remedies"]`` records each retry (the collapse it answered, its
+    carry almost none of the data's energy, a field trained with complex MSE that fits the
+    data no better than the zero field (residual ≥ 0.995), a near-constant field, or a
+    loss that never fell from its first epoch (not checked for an `init` warm start, which
+    may begin converged). A collapsed run is retried up to the recipe's `retries` times,
+    each from a fresh initialisation (seed + 1000·k; an `init` field is kept) at half the
+    previous learning rate. ``stats["remedies"]`` records each retry (the collapse it answered, its
     seed and learning rate), ``stats["collapse"]`` what remains wrong with the returned run
     (None: nothing), and ``stats["attempts"]`` how many ran. If every attempt collapsed,
     the one with the lowest best loss is returned and a `CollapseWarning` says so.
@@ -137,7 +139,11 @@ def rift(
         if solution.stopped.outcome is Outcome.STOPPED:  # its monitor ended it: not judged,
             return solution, None  # so not retried
         started = init is not None or warm is not None
-        return solution, check_collapse(solution, operator.fn, signal, warm=started)
+        least_squares = recipe.loss_fn is complex_mse
+        why = check_collapse(
+            solution, operator.fn, signal, warm=started, least_squares=least_squares
+        )
+        return solution, why
 
     attempts, remedies = [checked(solution)], []  # (solution, why it collapsed or None)
     learning_rate = solution.stats["recipe"]["learning_rate"]
