@@ -207,8 +207,10 @@ def _rift_step_seconds(radar, points, n_views: int = 10, epochs: int = 4) -> flo
     viewpoints = rj.Viewpoints.grid(n_views, 1, polar_range=(1.0, 1.0))
     op = rj.grt_operator(radar, viewpoints, points)
     signal = op.mv(jnp.ones(len(points), jnp.complex64))
+    # retries=0: four steps fit little, and a collapse's retry would add runs, not change
+    # the step timed
     result = rj.solvers.rift(
-        op, signal, model="rift-n", epochs=epochs, epoch_views=None, progress=False
+        op, signal, model="rift-n", epochs=epochs, epoch_views=None, retries=0, progress=False
     )
     return float(np.median(np.diff(result.history.seconds)))
 

@@ -134,7 +134,8 @@ def methods(cfg: Config, n_train: int) -> list[tuple[str, str, dict]]:
             (f"{method} auto fine", method, rift | fine),
         ]
     if "rift-n" in cfg.methods:
-        out.append(("rift-n paper recipe", "rift-n", rift | GRID | {"recipe": "paper"}))
+        paper = rift | GRID | {"recipe": "paper", "loss": "paper"}  # the recipe's own loss
+        out.append(("rift-n paper recipe", "rift-n", paper))
     return out
 
 

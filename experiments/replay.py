@@ -11,9 +11,12 @@ scene, draw of views, noise and seed) with ``--options`` (a JSON object) added t
 options. With ``--grid`` (a stress grid's results folder of the same scale; default
 ``docs/results/stability_SCALE`` where it exists), results.md sets each replay beside that
 grid's own run of the method, FISTA's, and says whether the replay fails by the grid's rule,
-judged with the grid's other methods in its cell. For example, docs/rift.md's comparison of losses:
+judged with the grid's other methods in its cell. For example, docs/rift.md's comparison of
+losses, which ran when the robust loss was the default (its replays then named
+``{"loss": "mse"}``; the committed grid's RIFT rows ran the robust loss, so ``'{}'`` now
+sets today's default, complex MSE, beside them):
 
-    python -m experiments.replay --method rift-n --options '{"loss": "mse"}' \\
+    python -m experiments.replay --method rift-n --options '{"loss": "robust"}' \\
         --cells cube:30:none cube:30:0 parking_lot:100:none ...
 
 Writes results.json, results.md and reconstructions.npz into ``--out`` (default

@@ -170,7 +170,7 @@ def rift_options(n_train: int, steps: int, batch_views: int = 10) -> dict:
     options are what they were before `epoch_views` existed."""
     epochs = max(1, round(steps * batch_views / n_train))
     options = {
-        "loss": rj.solvers.Recipe().loss,  # named, so a results file says which loss ran
+        "loss": "mse",  # `Recipe`'s default, named: a results file says which loss ran
         "epochs": epochs,
         "halve_every": epochs / 4,
         "batch_views": batch_views,
@@ -715,14 +715,15 @@ def _upgrade(row: dict, seed: int) -> dict:
     rows from before rows held their seed were made with the file's. A RIFT row whose
     options name no `patience` ran every epoch: None was the default before 10; one that
     names no `prune` trained every point, one that names no `loss` trained with the robust
-    loss, and a row that names no `support` ran on the whole grid (the defaults before
-    "auto", 0.05 and complex MSE)."""
+    loss (the paper's, under the paper's recipe), and a row that names no `support` ran on
+    the whole grid (the defaults before "auto", 0.05 and complex MSE)."""
     row = {"seed": seed} | row
     options = row.get("options")
     if isinstance(options, dict):
         options = {"support": None} | options
         if str(row.get("method", "")).startswith("rift"):
-            options = {"patience": None, "prune": None, "loss": "robust"} | options
+            loss = "paper" if options.get("recipe") == "paper" else "robust"
+            options = {"patience": None, "prune": None, "loss": loss} | options
         row["options"] = options
     legacy = row["stopped"]
     if not isinstance(legacy, str):

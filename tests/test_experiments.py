@@ -248,6 +248,8 @@ def test_the_experiments_name_rifts_patience():
     older = row | {"options": {"epochs": 3}}
     expected = {"epochs": 3, "patience": None, "prune": None, "loss": "robust", "support": None}
     assert runner._upgrade(older, seed=0)["options"] == expected
+    paper = older | {"options": {"epochs": 3, "recipe": "paper"}}
+    assert runner._upgrade(paper, seed=0)["options"]["loss"] == "paper"
     lsmr = row | {"method": "lsmr", "options": {"iterations": 30, "support": "auto"}}
     lsmr |= {"stopped": rj.solvers.Stop(rj.solvers.Outcome.BUDGET, 30).to_json()}
     assert runner._upgrade(lsmr, seed=0) == lsmr  # 3 checks of 10 steps

@@ -8,8 +8,9 @@ import numpy as np
 
 from ..._geometry import spread
 from ..._operator import GRT
+from ..._precision import exact_jit
 from ..._sharding import replicated
-from .._common import DIAGNOSTIC_VIEWS, norms
+from .._common import DIAGNOSTIC_VIEWS
 from .._solution import Solution
 
 
@@ -19,7 +20,7 @@ class CollapseWarning(UserWarning):
 
 # thresholds of `diagnose`: far from any reconstruction seen to work (docs/rift.md, Collapse)
 _ZERO_ENERGY = 1e-2  # ‖Aρ‖/‖y‖ below this: the field predicts (almost) nothing
-_FITS_NOTHING = 0.995  # residual at least this (the zero field's is 1): complex MSE ≥ 0.99
+_FITS_NOTHING = 0.995  # best-gain residual at least this: < 1 % of the data's power explained
 _GAIN_DRIFT = 1e-2  # |g| fallen below this share of its start: drifting to zero
 _CONSTANT = 0.1  # std|ρ| / mean|ρ| below this: no structure
 _FLAT = 0.99  # best loss above this share of the first epoch's: no descent
@@ -43,13 +44,16 @@ def diagnose(
     - `energy_ratio`: ‖Aρ‖/‖y‖ on (some of) the training viewpoints.
     - `gain_ratio`: |g| of the returned field over |g| at the start.
     - `warm`: the run started from a given field (a flat loss is then no collapse).
-    - `residual`: ‖y − Aρ‖/‖y‖ on the same viewpoints, for a run trained to lower it
-      (complex MSE, whose loss is its square; None: not checked). At 0.995 or more the
-      field explains the data no better than the zero field (1): how complex MSE
-      collapses, with a field that still carries energy. Other losses are not judged by
-      it: under the two-grid protocol the robust loss's good fits end above 1 (1.05 on the
-      weak target at the paper's scale, m-SSIM 0.96), and the paper's loss scores random
-      phases worse than a zero field.
+    - `residual`: the least ‖y − g·Aρ‖/‖y‖ over a complex gain g, √(1 − c²) with c the
+      coherence |⟨y, Aρ⟩|/(‖y‖‖Aρ‖), on the same viewpoints, for a run trained to lower
+      the residual (complex MSE; None: not checked). At 0.995 or more (c² ≤ 1 %) no
+      rescaling of the field explains the data better than the zero field does: how
+      complex MSE collapses, with a field that still carries energy (its two failures on
+      the stress grid: 0.998 and 1.000). The least any method reached in the committed
+      results is 0.977-0.989 (least squares on the complex scenes at the paper's scale).
+      Other losses are not judged by it: under the two-grid protocol the robust loss's
+      good fits leave the gain where the residual ends above 1 (1.05 on the weak target at
+      the paper's scale, m-SSIM 0.96).
 
     **Returns:** a sentence naming the failure mode, or None.
     """
@@ -59,7 +63,10 @@ def diagnose(
     if not energy_ratio >= _ZERO_ENERGY:
         return f"zero field: its signals carry {100 * energy_ratio:.2g} % of the data's norm"
     if residual is not None and not residual < _FITS_NOTHING:
-        return f"fits nothing: its residual ‖y − Aρ‖/‖y‖ is {residual:.3f} (the zero field's: 1)"
+        return (
+            f"fits nothing: even at its best gain the residual ‖y − g·Aρ‖/‖y‖ is "
+            f"{residual:.3f} (the zero field's: 1)"
+        )
     mean = magnitude.mean()
     if mean > 0 and magnitude.std() < _CONSTANT * mean:
         return f"near-constant field: std|ρ| is {magnitude.std() / mean:.1%} of mean|ρ|"
@@ -78,28 +85,39 @@ def diagnose(
 _COLLAPSE_VIEWS = 10
 
 
+@exact_jit
+def _measures(prediction, signal):
+    """‖Aρ‖, ‖y‖ and |⟨y, Aρ⟩|: one program for the check's three numbers."""
+    return (
+        jnp.linalg.norm(prediction),
+        jnp.linalg.norm(signal),
+        jnp.abs(jnp.vdot(signal, prediction)),
+    )
+
+
 def check_collapse(
     solution: Solution, fn: GRT, signal, *, warm: bool, least_squares: bool
 ) -> str | None:
-    """`diagnose` for a trained run; ‖Aρ‖/‖y‖, and the residual where ``least_squares``
-    (the run trained with complex MSE), from every viewpoint up to `DIAGNOSTIC_VIEWS`, else
-    from `_COLLAPSE_VIEWS` evenly spread ones."""
-    count = fn.n_views if fn.n_views <= DIAGNOSTIC_VIEWS else _COLLAPSE_VIEWS
-    index = jnp.asarray(spread(fn.n_views, count))
+    """`diagnose` for a trained run, read on the viewpoints it trained on (not those it
+    held out): every one up to `DIAGNOSTIC_VIEWS`, else `_COLLAPSE_VIEWS` evenly spread
+    ones. The best-gain residual only where ``least_squares`` (the run trained with complex
+    MSE) and the returned ``rho`` is what it trained: a coarse-to-fine run's is its
+    rendering on the inverse grid, which under the two-grid protocol explains little of
+    the data (`fit` checks `trained` on the fine points)."""
+    views = np.setdiff1d(np.arange(fn.n_views), solution.stats.get("holdout_views", []))
+    if len(views) > DIAGNOSTIC_VIEWS:
+        views = views[spread(len(views), _COLLAPSE_VIEWS)]
+    index = jnp.asarray(views)
     fn, rho, signal, index = replicated((fn, solution.rho, signal, index))
-    prediction, measured = fn.subset(index)(rho), signal[index]
-    predicted, norm, misfit = (
-        np.float64(x) for x in norms(prediction, measured, measured - prediction)
+    predicted, norm, overlap = (
+        np.float64(x) for x in _measures(fn.subset(index)(rho), signal[index])
     )
     with np.errstate(divide="ignore", invalid="ignore"):  # inf, or NaN for 0/0: see diagnose
-        energy, residual = float(predicted / norm), float(misfit / norm)
+        energy = float(predicted / norm)
+        coherence = min(float(overlap / (predicted * norm)), 1.0) if predicted > 0 else 0.0
+    residual = None
+    if least_squares and "fine_from_epoch" not in solution.stats:
+        residual = float(np.sqrt(1.0 - coherence**2))
     gain_ratio = float(abs(solution.field.gain)) / solution.stats["initial_gain"]
     rho = np.asarray(solution.rho)[fn.live_points()]  # padding must not move mean or spread
-    return diagnose(
-        solution.history.loss,
-        rho,
-        energy,
-        gain_ratio,
-        warm=warm,
-        residual=residual if least_squares else None,
-    )
+    return diagnose(solution.history.loss, rho, energy, gain_ratio, warm=warm, residual=residual)
