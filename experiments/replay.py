@@ -132,6 +132,19 @@ def compare(rows: list[dict], grid_rows: list[dict], method: str) -> list[dict]:
     return out
 
 
+def _losses(rows: list[dict], grid_rows: list[dict], method: str) -> str:
+    """For RIFT, which loss the replays and the grid's runs trained with: a grid's rows from
+    before complex MSE name none and ran the robust loss (`runner._upgrade`)."""
+    if not method.startswith("rift"):
+        return ""
+
+    def losses(rows):
+        return ", ".join(sorted({r["options"].get("loss", "robust") for r in rows})) or "–"
+
+    ran = [r for r in grid_rows if r.get("method") == method]
+    return f" Loss: the replays' {losses(rows)}, the grid's runs' {losses(ran)}."
+
+
 def report(results, cfg, out: Path, grid: Path | None, grid_rows: list[dict]) -> None:
     """results.md: each replay beside the grid's own run and FISTA's; the verdicts go into
     the rows of ``results`` too (results.json is written before each report)."""
@@ -165,7 +178,8 @@ def report(results, cfg, out: Path, grid: Path | None, grid_rows: list[dict]) ->
         f"{stability.LABELS[cfg.replay_method]} on each cell's own data with "
         f"`{json.dumps(cfg.replay_options)}` added to the grid's options; beside it the grid's "
         f"own run and FISTA's from {grid if grid is not None else '(no grid given)'}. A "
-        "replay fails by the grid's rule, judged with the grid's other methods in its cell.",
+        "replay fails by the grid's rule, judged with the grid's other methods in its cell."
+        + _losses(rows, grid_rows, cfg.replay_method),
         "",
         table(rows, columns),
         "",

@@ -661,3 +661,14 @@ def test_replay_writes_its_report_beside_the_grid(tmp_path):
     assert (out / "results.json").exists() and json.loads((out / "results.json").read_text())[
         "rows"
     ][0]["fista"] == pytest.approx(0.123)  # the verdicts are in results.json too
+
+
+def test_replay_says_which_loss_each_side_trained_with():
+    """A grid's RIFT rows from before complex MSE name no loss: they ran the robust loss,
+    and a report that sets MSE replays beside them says so."""
+    old = {"method": "rift-n", "options": {"prune": 0.05}}
+    new = {"method": "rift-n", "options": {"loss": "mse"}}
+    grid = [old, {"method": "fista", "options": {}}]
+    said = replay._losses([new], grid, "rift-n")
+    assert said == " Loss: the replays' mse, the grid's runs' robust."
+    assert replay._losses([new], grid, "fista") == ""
