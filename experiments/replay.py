@@ -13,10 +13,10 @@ options. With ``--grid`` (a stress grid's results folder of the same scale; defa
 grid's own run of the method, FISTA's, and says whether the replay fails by the grid's rule,
 judged with the grid's other methods in its cell. For example, docs/rift.md's comparison of
 losses, which ran when the robust loss was the default (its replays then named
-``{"loss": "mse"}``; the committed grid's RIFT rows ran the robust loss, so ``'{}'`` now
-sets today's default, complex MSE, beside them):
+``{"loss": "mse"}``). The committed grid's RIFT rows ran the robust loss, so ``'{}'`` now
+sets today's default, complex MSE, beside them:
 
-    python -m experiments.replay --method rift-n --options '{"loss": "robust"}' \\
+    python -m experiments.replay --method rift-n --options '{}' \\
         --cells cube:30:none cube:30:0 parking_lot:100:none ...
 
 Writes results.json, results.md and reconstructions.npz into ``--out`` (default

@@ -72,9 +72,9 @@ def complex_mse(
     pred: Complex[Array, " *shape"], target: Complex[Array, " *shape"]
 ) -> Float[Array, ""]:
     """mean|P − S|² / mean|S|² (a zero target gives mean|P|²): the coherent least-squares
-    data term, relative to the data's power; the default. A zero prediction scores 1, so a
-    run that ends near 1 has fitted nothing (`rift_jax.solvers.diagnose`'s "fits
-    nothing")."""
+    data term, relative to the data's power; the default. A zero prediction scores 1; a
+    field that no complex gain brings under 0.995² has fitted nothing
+    (`rift_jax.solvers.diagnose`'s "fits nothing")."""
     _check("complex_mse", pred, target)
     power = jnp.mean(jnp.abs(target) ** 2)
     return jnp.mean(jnp.abs(pred - target) ** 2) / jnp.where(power > 0, power, 1.0)

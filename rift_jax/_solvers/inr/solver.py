@@ -82,8 +82,9 @@ def rift(
 
     **Collapse.** After training, the run is checked for the ways an INR fails without a
     non-finite value (`diagnose`): a global gain that drifted to zero, a field whose signals
-    carry almost none of the data's energy, a field trained with complex MSE that fits the
-    data no better than the zero field (residual ≥ 0.995), a near-constant field, or a
+    carry almost none of the data's energy, a field trained with complex MSE that explains
+    under 1 % of the data's power on its training views even at its best complex gain
+    (residual ≥ 0.995; not for coarse to fine), a near-constant field, or a
     loss that never fell from its first epoch (not checked for an `init` warm start, which
     may begin converged). A collapsed run is retried up to the recipe's `retries` times,
     each from a fresh initialisation (seed + 1000·k; an `init` field is kept) at half the
