@@ -31,7 +31,15 @@ import json
 from pathlib import Path
 
 from . import stability
-from .runner import Run, check_writable, environment_line, table, write_atomic, write_json
+from .runner import (
+    Run,
+    check_writable,
+    environment_line,
+    rift_loss,
+    table,
+    write_atomic,
+    write_json,
+)
 
 GRIDS = Path("docs/results")  # the committed grids: stability_SCALE
 # options a replay may not change: they would move a run to another cell's data
@@ -133,13 +141,13 @@ def compare(rows: list[dict], grid_rows: list[dict], method: str) -> list[dict]:
 
 
 def _losses(rows: list[dict], grid_rows: list[dict], method: str) -> str:
-    """For RIFT, which loss the replays and the grid's runs trained with: a grid's rows from
-    before complex MSE name none and ran the robust loss (`runner._upgrade`)."""
+    """For RIFT, which loss the replays and the grid's runs trained with (a grid's rows from
+    before complex MSE name none: `rift_loss`)."""
     if not method.startswith("rift"):
         return ""
 
     def losses(rows):
-        return ", ".join(sorted({r["options"].get("loss", "robust") for r in rows})) or "–"
+        return ", ".join(sorted({rift_loss(r["options"]) for r in rows})) or "–"
 
     ran = [r for r in grid_rows if r.get("method") == method]
     return f" Loss: the replays' {losses(rows)}, the grid's runs' {losses(ran)}."

@@ -709,6 +709,15 @@ def _changed_setting(cfg, saved: dict, per_run: Collection[str]) -> str | None:
     return None
 
 
+def rift_loss(options: Mapping) -> str:
+    """The loss a RIFT run with these options trained with: the one they name, else the
+    default of the time when rows named none, the robust loss (the paper's under the paper's
+    recipe)."""
+    if "loss" in options:
+        return options["loss"]
+    return "paper" if options.get("recipe") == "paper" else "robust"
+
+
 def _upgrade(row: dict, seed: int) -> dict:
     """A saved row as this version writes it. Rows from before typed outcomes (95641d3)
     said why a run ended in free text, and held a divergence's message under "diverged";
@@ -722,8 +731,7 @@ def _upgrade(row: dict, seed: int) -> dict:
     if isinstance(options, dict):
         options = {"support": None} | options
         if str(row.get("method", "")).startswith("rift"):
-            loss = "paper" if options.get("recipe") == "paper" else "robust"
-            options = {"patience": None, "prune": None, "loss": loss} | options
+            options = {"patience": None, "prune": None, "loss": rift_loss(options)} | options
         row["options"] = options
     legacy = row["stopped"]
     if not isinstance(legacy, str):
