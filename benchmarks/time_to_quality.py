@@ -152,7 +152,16 @@ def runs(cfg: Config) -> list[Run]:
     ]
 
 
-def main(cfg: Config, *, out: Path, scale: str, seed: int, resume: bool, progress: bool):
+def main(
+    cfg: Config,
+    *,
+    out: Path,
+    scale: str,
+    seed: int,
+    resume: bool,
+    progress: bool,
+    part: tuple[int, int] | None = None,
+):
     rate = complex_matmul_rate()
     print(f"complex64 matmul on this machine: {rate:.2f} G multiply-adds/s", flush=True)
     radar = rj.Radar(n_frequencies=cfg.n_frequencies, n_tx=cfg.n_antennas, n_rx=cfg.n_antennas)
@@ -180,6 +189,7 @@ def main(cfg: Config, *, out: Path, scale: str, seed: int, resume: bool, progres
         notes={"matmul_rate_gmacs": rate},
         resume=resume,
         progress=progress,
+        part=part,
     )
 
 

@@ -184,6 +184,7 @@ def main(
     seed: int = 0,
     resume: bool = False,
     progress: bool = True,
+    part: tuple[int, int] | None = None,
 ) -> dict:
     scenes = {s: getattr(rj.scenes, s)(cfg.forward, extent=cfg.extent) for s in cfg.scenes}
     results = execute(
@@ -202,6 +203,7 @@ def main(
         resume=resume,
         per_run=("scenes", "ls", "rift", "fista", "models", "budget"),  # which runs, and how
         progress=progress,
+        part=part,
     )
     print(
         f"wrote results.md, results.json, reconstructions.npz, reconstructions_xy.png, "

@@ -304,6 +304,7 @@ def main(
     seed: int = 0,
     resume: bool = False,
     progress: bool = True,
+    part: tuple[int, int] | None = None,
 ) -> dict:
     """Every run of ``cfg``; the results dict as written to ``out/results.json``."""
     unknown = set(cfg.truths) - set(TRUTHS)
@@ -331,6 +332,7 @@ def main(
         resume=resume,
         progress=progress,
         per_run=("methods",),  # a method added since runs alone on --resume
+        part=part,
     )
     print(f"wrote results.md, results.json, mismatch.png and reconstructions.npz to {out}/")
     return results

@@ -128,11 +128,12 @@ def main(
     seed: int = 0,
     resume: bool = False,
     progress: bool = True,
+    part: tuple[int, int] | None = None,
 ) -> dict:
     """Every run of ``cfg``'s cells studied; the results dict as in ``out/results.json``."""
     results = stability.on_the_grid(
         "rift_ideas", cfg, runs(cfg), report, out=out, scale=scale, seed=seed, resume=resume,
-        progress=progress,
+        progress=progress, part=part,
     )  # fmt: skip
     print(f"{len(results['rows'])} runs; wrote results.md, results.json to {out}/")
     return results

@@ -63,6 +63,13 @@ def write_json(path: str | Path, obj) -> Path:
     return write_atomic(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
 
 
+def write_npz(path: str | Path, arrays: Mapping[str, np.ndarray]) -> Path:
+    """Write ``arrays`` as a compressed ``.npz`` atomically."""
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)
+    return write_atomic(path, buffer.getvalue())
+
+
 def save_figure(fig, path: str | Path) -> Path:
     """Render a matplotlib figure to PNG bytes, then write them atomically."""
 
@@ -489,6 +496,7 @@ def execute(
     resume: bool = False,
     per_run: Collection[str] = ("budget",),
     progress: bool = True,
+    part: tuple[int, int] | None = None,
 ) -> dict:
     """Do every run not yet in ``out`` (with ``resume``), writing after each. Returns the
     results dict (as in ``results.json``).
@@ -502,8 +510,11 @@ def execute(
     experiment-specific numbers to a run's row; they are derived from the saved
     reconstructions at every save, so ``resume`` also refreshes them. ``trace`` (`Trace`'s
     options, or None) samples each run's quality against its wall time into its row's
-    ``trace``. ``notes`` go into the results as they are (e.g. the machine's matmul rate);
-    a resumed run keeps the first run's and adds the new ones under ``resumed_notes``.
+    ``trace``. ``part`` ``(k, n)`` does only runs k, k + n, k + 2n, ... (k from 1): one of
+    n processes or machines sharing the study, each with its own ``out``;
+    ``python -m experiments.merge`` joins them. ``notes`` go into the results as they are
+    (e.g. the machine's matmul rate); a resumed run keeps the first run's and adds the new
+    ones under ``resumed_notes``.
 
     ``resume`` refuses another seed or a changed setting of ``cfg``, except those named in
     ``per_run``: settings that only shape the runs (which runs, their `fit` options), which
@@ -553,16 +564,14 @@ def execute(
             for row in results["rows"]:
                 volume = volumes[f"{row['scene']}/{row['run']}"]
                 row |= analyse(row, volume, volumes[f"truth/{row['scene']}"])
-        buffer = io.BytesIO()
-        np.savez_compressed(buffer, **volumes)
-        write_atomic(out / "reconstructions.npz", buffer.getvalue())
+        write_npz(out / "reconstructions.npz", volumes)
         write_json(out / "results.json", results)
         figures = final or time.perf_counter() - drawn > 60
         report(results, volumes, figures)
         if figures:
             drawn = time.perf_counter()
 
-    for run in runs:
+    for run in runs if part is None else runs[part[0] - 1 :: part[1]]:
         if any(r["scene"] == run.scene and r["run"] == run.label for r in results["rows"]):
             continue
         release_compiled_programs()
@@ -820,6 +829,14 @@ def parse(argv, doc: str, scales: Mapping, name: str, root: str = "results"):
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--resume", action="store_true", help="keep the runs already in --out")
     parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    parser.add_argument(
+        "--part",
+        type=_part,
+        default=None,
+        metavar="K/N",
+        help="do only runs K, K+N, K+2N, ... (K from 1 to N): one of N processes or machines "
+        "sharing the study, each with its own --out; `python -m experiments.merge` joins them",
+    )
     args = parser.parse_args(argv)
     args.out = args.out or Path(root) / f"{name}_{args.scale}"
     try:
@@ -829,11 +846,21 @@ def parse(argv, doc: str, scales: Mapping, name: str, root: str = "results"):
     return scales[args.scale], args
 
 
+def _part(text: str) -> tuple[int, int]:
+    try:
+        k, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        k = n = 0
+    if not 1 <= k <= n:
+        raise argparse.ArgumentTypeError(f"expected K/N with 1 <= K <= N, got {text!r}")
+    return k, n
+
+
 def command(
     argv, doc: str, scales: Mapping, name: str, main: Callable[..., dict], root: str = "results"
 ) -> dict:
     """Parse the shared command line and call ``main(cfg, out=, scale=, seed=, resume=,
-    progress=)``."""
+    progress=, part=)``."""
     cfg, args = parse(argv, doc, scales, name, root)
     return main(
         cfg,
@@ -842,6 +869,7 @@ def command(
         seed=args.seed,
         resume=args.resume,
         progress=not args.no_progress,
+        part=args.part,
     )
 
 
@@ -901,7 +929,11 @@ def environment_line(results: dict) -> str:
     count = f"{done} runs" if planned in (None, done) else f"{done} of {planned} runs (unfinished)"
     machine = _machine(v)
     # a resumed file's runs may come from other machines too: name them
-    others = dict.fromkeys(_machine(r) for r in results.get("resumed_with", []) if "devices" in r)
+    parts = results.get("parts", [])  # experiments.merge: runs from several processes
+    if len(parts) > 1:
+        count += f" (in {len(parts)} parts run side by side; the time is their sum)"
+    resumed = [p["versions"] for p in parts[1:]] + results.get("resumed_with", [])
+    others = dict.fromkeys(_machine(r) for r in resumed if "devices" in r)
     others.pop(machine, None)
     if others:
         machine += f", resumed on {'; '.join(others)}"
@@ -911,7 +943,7 @@ def environment_line(results: dict) -> str:
         f"Python {v['python']}."
     )
     # a resumed file's runs may come from several versions of the code: say which
-    runs = [v, *results.get("resumed_with", [])]
+    runs = [v, *resumed]
     commits = list(dict.fromkeys(c[:7] for c in (r.get("git_commit") for r in runs) if c))
     if len(commits) > 1:
         line += f" Code at commit {commits[0]}, resumed at {', '.join(commits[1:])}."

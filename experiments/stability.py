@@ -412,6 +412,7 @@ def on_the_grid(
     seed: int,
     resume: bool,
     progress: bool,
+    part: tuple[int, int] | None = None,
 ) -> dict:
     """`execute` the runs ``asked`` on the stress grid's scenes, radar, grids and views of
     ``cfg`` (the stress grid's, or a study of its cells), with ``report(results, volumes,
@@ -433,6 +434,7 @@ def on_the_grid(
         report=lambda *args: report(*args, cfg, Path(out)),
         resume=resume,
         progress=progress,
+        part=part,
     )
 
 
@@ -444,12 +446,13 @@ def main(
     seed: int = 0,
     resume: bool = False,
     progress: bool = True,
+    part: tuple[int, int] | None = None,
 ) -> dict:
     """Every run of ``cfg``; the results dict as written to ``out/results.json``, with
     ``failures`` (an integer: the target is 0)."""
     results = on_the_grid(
         "stability", cfg, runs(cfg), report, out=out, scale=scale, seed=seed, resume=resume,
-        progress=progress,
+        progress=progress, part=part,
     )  # fmt: skip
     # the last report judged every row; results.json, written just before it, gets the verdicts
     results["failures"] = sum(bool(r["failed"]) for r in results["rows"])

@@ -321,6 +321,7 @@ def main(
     seed: int = 0,
     resume: bool = False,
     progress: bool = True,
+    part: tuple[int, int] | None = None,
 ) -> dict:
     """Every run of ``cfg`` (those already in ``out`` too, with ``resume``); the results
     dict as written to ``out/results.json``."""
@@ -360,6 +361,7 @@ def main(
         analyse=lambda row, volume, truth: measure(row["scene"], volume),
         resume=resume,
         progress=progress,
+        part=part,
     )
     for row in results["rows"]:
         print(f"{row['scene']} {row['run']}: {verdict(row, cfg)}")

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments import runner, stability
+from experiments import merge, runner, stability
 
 SOLVERS_MD = Path(__file__).resolve().parent.parent / "docs" / "solvers.md"
 ROW = re.compile(r"^\| (?P<input>.+?) \| `(?P<call>.+?)` \| `(?P<kind>\w+)`: (?P<seen>.+) \|$")
@@ -205,6 +205,31 @@ def test_an_interrupted_experiment_resumes_without_losing_or_repeating_a_run(tmp
     with np.load(tmp_path / "reconstructions.npz") as volumes:
         np.testing.assert_array_equal(volumes[key], kept_volume)
         assert all(f"{r['scene']}/{r['run']}" in volumes.files for r in saved["rows"])
+
+
+@pytest.mark.slow
+def test_a_study_run_in_parts_joins_into_the_whole(tmp_path, monkeypatch):
+    """experiments.stability at its quick scale as parts 1 and 2 of 3 (in two folders),
+    merged, then resumed: the resumed study runs part 3 alone and holds every run once."""
+    argv = ["--scale", "quick", "--no-progress"]
+    for k in (1, 2):
+        stability.cli([*argv, "--out", str(tmp_path / f"part-{k}"), "--part", f"{k}/3"])
+    merge.cli([str(tmp_path / "all"), str(tmp_path / "part-1"), str(tmp_path / "part-2")])
+    fit_and_evaluate = runner.fit_and_evaluate
+    calls = []
+
+    def counted(*args, **kwargs):
+        calls.append((kwargs["method"], len(args[1])))
+        return fit_and_evaluate(*args, **kwargs)
+
+    monkeypatch.setattr(runner, "fit_and_evaluate", counted)
+    results = stability.cli([*argv, "--out", str(tmp_path / "all"), "--resume"])
+    runs = stability.runs(stability.SCALES["quick"])
+    assert calls == [(run.method, run.n_train) for run in runs[2::3]]
+    done = sorted((r["scene"], r["run"]) for r in results["rows"])
+    assert done == sorted((run.scene, run.label) for run in runs)
+    assert (tmp_path / "all" / "results.md").exists()
+    assert "in 2 parts run side by side" in (tmp_path / "all" / "results.md").read_text()
 
 
 def test_an_interrupted_save_leaves_the_last_complete_files(tmp_path, monkeypatch):
