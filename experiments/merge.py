@@ -6,7 +6,9 @@
 Each PART is the ``--out`` folder of one part (its results.json and reconstructions.npz):
 the same experiment, scale, config and seed. OUT gets every run of them together; the
 experiment, resumed on OUT, then does any run no part finished and writes its report from
-all of them. A run done in two parts, or parts of different studies, stop the merge.
+all of them. Parts may share runs they both resumed from (a merged folder copied into each,
+then ``--part K/N --resume``): a run in two parts is kept once if its reconstruction is the
+same, bit for bit; measured twice, or parts of different studies, it stops the merge.
 """
 
 from __future__ import annotations
@@ -26,7 +28,8 @@ def merge(out: str | Path, parts: list[str | Path]) -> dict:
     """Write the runs of every folder in ``parts`` into ``out`` (results.json and
     reconstructions.npz); returns the merged results dict. The first part's notes and
     versions head the file; ``parts`` records each part's folder, versions and runs, and
-    ``wall_seconds`` is their sum (the work, not the time it took side by side)."""
+    ``wall_seconds`` is the sum over the runs (the work, not the time it took side by side;
+    as `execute` counts it, a support estimate shared by several runs once)."""
     if not parts:
         raise ValueError("merge: `parts` is empty; expected at least one --out folder.")
     out = Path(out)
@@ -34,7 +37,6 @@ def merge(out: str | Path, parts: list[str | Path]) -> dict:
         raise ValueError(f"merge: `out` {out} is one of the parts; write the merge elsewhere.")
     merged: dict | None = None
     volumes: dict[str, np.ndarray] = {}
-    done: set[tuple[str, str]] = set()
     for part in map(Path, parts):
         for name in ("results.json", "reconstructions.npz"):
             if not (part / name).exists():
@@ -49,23 +51,33 @@ def merge(out: str | Path, parts: list[str | Path]) -> dict:
                     f"merge: part {part} is another study ({key} {results[key]!r}, the first "
                     f"part's {merged[key]!r})."
                 )
+        with np.load(part / "reconstructions.npz") as saved:
+            own = {key: saved[key] for key in saved.files}
         for row in results["rows"]:
-            run = (row["scene"], row["run"])
-            if run in done:
-                raise ValueError(f"merge: {run[0]} {run[1]} is in two parts (again in {part}).")
-            done.add(run)
+            key = f"{row['scene']}/{row['run']}"
+            if key in volumes:
+                if not np.array_equal(volumes[key], own[key]):
+                    raise ValueError(f"merge: {key} was measured in two parts (again in {part}).")
+                continue  # a run both parts resumed from: kept once
+            volumes[key] = own[key]
             merged["rows"].append(row)
-        merged["histories"] |= results["histories"]
-        merged["wall_seconds"] += results["wall_seconds"]
+            merged["histories"][key] = results["histories"][key]
+            merged["wall_seconds"] += _work(row)
+        volumes |= {key: value for key, value in own.items() if key.startswith("truth/")}
         merged["parts"].append(
             {"folder": str(part), "runs": len(results["rows"]), "versions": results["versions"]}
         )
-        with np.load(part / "reconstructions.npz") as saved:
-            volumes |= {key: saved[key] for key in saved.files}  # truths: the same in each
     check_writable(out)
     write_npz(out / "reconstructions.npz", volumes)
     write_json(out / "results.json", merged)
     return merged
+
+
+def _work(row: dict) -> float:
+    """A run's share of a study's ``wall_seconds``: its own, less a support estimate it
+    reused (``execute`` counts each estimate once)."""
+    reused = row.get("support_seconds", 0.0) if row.get("support_reused") else 0.0
+    return row["wall_seconds"] - reused
 
 
 def cli(argv=None) -> dict:

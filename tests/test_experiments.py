@@ -317,16 +317,18 @@ def test_the_environment_line_names_the_accelerator_and_an_unfinished_study():
     assert "CPU cores, resumed on 2 CPU cores (cpu:0, cpu:1);" in runner.environment_line(resumed)
 
 
-def _part(folder, rows, seed=0, wall=60.0):
-    """A study's --out folder holding ``rows`` (scene, run) and a volume for each."""
+def _part(folder, rows, seed=0, wall=30.0, first=0):
+    """A study's --out folder holding ``rows`` (scene, run), each of ``wall`` seconds, and
+    a volume for each (the k-th all ``first + k``)."""
     versions = {"cpu_count": 16, "devices": ["cuda:0"], "device_kind": "NVIDIA H200"}
     versions |= {"rift_jax": "0", "jax": "0", "python": "3"}
     results = {"experiment": "stability", "scale": "default", "config": {"extent": 4.8}}
-    results |= {"seed": seed, "wall_seconds": wall, "versions": versions, "notes": {}}
-    results |= {"rows": [{"scene": s, "run": r, "m_ssim": 0.5} for s, r in rows]}
+    results |= {"seed": seed, "wall_seconds": wall * len(rows), "versions": versions}
+    results |= {"rows": [{"scene": s, "run": r, "wall_seconds": wall} for s, r in rows]}
+    results["notes"] = {}
     results |= {"histories": {f"{s}/{r}": {"loss": [1.0]} for s, r in rows}, "failures": 0}
     runner.write_json(folder / "results.json", results)
-    volumes = {f"{s}/{r}": np.full(3, k, np.complex64) for k, (s, r) in enumerate(rows)}
+    volumes = {f"{s}/{r}": np.full(3, first + k, np.complex64) for k, (s, r) in enumerate(rows)}
     runner.write_npz(folder / "reconstructions.npz", volumes | {"truth/cube": np.ones(3)})
 
 
@@ -334,25 +336,26 @@ def test_merge_joins_the_parts_of_a_study_and_refuses_two_studies(tmp_path):
     from experiments import merge
 
     _part(tmp_path / "a", [("cube", "FISTA 10"), ("cube", "LSMR 10")])
-    _part(tmp_path / "b", [("sphere", "FISTA 10")], wall=30.0)
+    # b resumed from a copy of a's first run: that run is kept once
+    _part(tmp_path / "b", [("cube", "FISTA 10"), ("sphere", "FISTA 10")])
     merged = merge.merge(tmp_path / "all", [tmp_path / "a", tmp_path / "b"])
     saved = json.loads((tmp_path / "all" / "results.json").read_text())
     assert saved == json.loads(json.dumps(merged))
     runs = [(r["scene"], r["run"]) for r in saved["rows"]]
     assert runs == [("cube", "FISTA 10"), ("cube", "LSMR 10"), ("sphere", "FISTA 10")]
     assert set(saved["histories"]) == {f"{s}/{r}" for s, r in runs}
-    assert saved["wall_seconds"] == 90.0 and [p["runs"] for p in saved["parts"]] == [2, 1]
+    assert saved["wall_seconds"] == 90.0 and [p["runs"] for p in saved["parts"]] == [2, 2]
     assert "failures" not in saved  # the resumed study judges every run anew
     with np.load(tmp_path / "all" / "reconstructions.npz") as volumes:
         assert set(volumes.files) == {f"{s}/{r}" for s, r in runs} | {"truth/cube"}
-        np.testing.assert_array_equal(volumes["sphere/FISTA 10"], np.zeros(3))  # b's own
+        np.testing.assert_array_equal(volumes["sphere/FISTA 10"], np.ones(3))  # b's own
     line = runner.environment_line(saved)
     assert "3 runs (in 2 parts run side by side; the time is their sum) in 1.5 min" in line
 
-    _part(tmp_path / "again", [("cube", "LSMR 10")])
+    _part(tmp_path / "again", [("cube", "LSMR 10")], first=5)  # measured again
     _part(tmp_path / "seed1", [("cube", "RIFT(N) 10")], seed=1)
     for out, parts, message in (
-        ("joined", ["a", "again"], "cube LSMR 10 is in two parts"),
+        ("joined", ["a", "again"], "cube/LSMR 10 was measured in two parts"),
         ("joined", ["a", "seed1"], r"another study \(seed 1"),
         ("joined", ["a", "missing"], "has no results.json"),
         ("a", ["a", "b"], "`out` .* is one of the parts"),
