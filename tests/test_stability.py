@@ -182,6 +182,36 @@ def test_a_field_that_fits_nothing_is_a_collapse(tiny):
     assert result.stats["collapse"].startswith("fits nothing")
 
 
+def test_the_fits_nothing_check_reads_the_best_gain_on_training_views_only(tiny):
+    """`check_collapse`'s best-gain residual: a field that is the truth times −2 fits the
+    data exactly at its best gain (no collapse, though its own residual ‖y − Aρ‖/‖y‖ is 3);
+    the views held out are not read, however unlike the field their data are; a
+    coarse-to-fine run's rendering is not judged by it, nor a run trained with another loss."""
+    from types import SimpleNamespace
+
+    from rift_jax._solvers.inr.collapse import check_collapse
+
+    radar, scene, train, _ = tiny
+    op = rj.grt_operator(radar, train, scene.points())
+    truth = jnp.asarray(scene.reflectivity.reshape(-1))
+    unrelated = jnp.roll(truth, 40) * jnp.exp(1j * jnp.arange(truth.size))
+    held = jnp.asarray([0, 3])  # their data: another field's, 100 times louder
+    signal = op.mv(truth).at[held].set(100 * op.mv(unrelated)[held])
+
+    def check(rho, least_squares=True, **stats):
+        history = SimpleNamespace(loss=np.linspace(1.0, 0.1, 5))
+        stats = {"initial_gain": 1.0, "holdout_views": [0, 3]} | stats
+        solution = SimpleNamespace(rho=rho, stats=stats, field=SimpleNamespace(gain=1.0),
+                                   history=history)  # fmt: skip
+        return check_collapse(solution, op.fn, signal, warm=False, least_squares=least_squares)
+
+    assert check(-2 * truth) is None  # the gain does not matter
+    assert check(-2 * truth, holdout_views=[]).startswith("fits nothing")  # were they read
+    assert check(unrelated).startswith("fits nothing")
+    assert check(unrelated, fine_from_epoch=3) is None  # coarse to fine: not judged
+    assert check(unrelated, least_squares=False) is None  # another loss: not judged
+
+
 def test_a_flat_loss_is_retried_then_the_best_attempt_returned(tiny, caplog):
     """A learning rate too small to move anything leaves the loss flat from the start: each
     of 1 + 2 attempts is tried, halving the rate, and the lowest-loss one is returned. The
