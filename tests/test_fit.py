@@ -400,10 +400,16 @@ def test_failed_fit_warnings_name_the_cause():
         _warn_if_failed("fista", {"data_residual": 0.9, "coherence": 0.5}, False)  # not RIFT
         _warn_if_failed("rift-n", {"data_residual": 0.9, "coherence": 0.85}, False)
         # a good field trained with complex MSE (0.68-0.80 on the stress grid)
-        _warn_if_failed("rift-n", {"data_residual": 0.9, "coherence": 0.68}, False)
+        mse = {"data_residual": 0.9, "coherence": 0.68, "recipe": {"loss": "mse"}}
+        _warn_if_failed("rift-n", mse, False)
         # a field that explains the data is no collapse, however sharp against Aᴴy
         _warn_if_failed("rift-n", {"data_residual": 0.1, "coherence": 0.55}, False)
         # at 0 dB a perfect fit leaves 0.71: the residual beyond the noise's is what counts
         _warn_if_failed("rift-n", {"data_residual": 0.72, "coherence": 0.55}, False, 0.707)
+    # the robust loss's failed fields scored 0.74-0.79: warned at that loss, not at MSE's
+    for loss, coherence, floor in (("robust", 0.75, 0.8), ("mse", 0.6, 0.65)):
+        stats = {"data_residual": 0.9, "coherence": coherence, "recipe": {"loss": loss}}
+        with pytest.warns(rj.FitWarning, match=rf"= {coherence:.2f} < {floor}\): the smooth"):
+            _warn_if_failed("rift-s", stats, False)
     with pytest.warns(rj.FitWarning, match="smooth-blob"):  # a collapse at 0 dB
         _warn_if_failed("rift-n", {"data_residual": 0.98, "coherence": 0.55}, False, 0.707)
