@@ -1,7 +1,7 @@
 """Run time against error for every reconstruction method: which to pick when.
 
     python -m benchmarks.time_to_quality [--scale quick|default|paper] [--out DIR]
-                                         [--seed 0] [--resume] [--no-progress]
+                                         [--seed 0] [--resume] [--no-progress] [--part K/N]
 
 The cube, sphere and pyramid (ρ = 1) are synthesised on the forward grid and reconstructed
 on the nested inverse grid, from 100 and from 1000 training viewpoints, by every method of

@@ -2,7 +2,7 @@
 the mini highway, least squares from 2,500 viewpoints against RIFT from 1,000.
 
     python -m experiments.complex_scenes [--scale quick|default|paper] [--out DIR] [--seed 0]
-                                         [--resume] [--no-progress]
+                                         [--resume] [--no-progress] [--part K/N]
 
 Each scene (street lights, fences and cars on the ground z = -1 m; ρ = 1; layout in
 `rift_jax.scenes.parking_lot` / `highway`) is synthesised on the forward grid at training

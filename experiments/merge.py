@@ -21,31 +21,42 @@ import numpy as np
 
 from .runner import check_writable, write_json, write_npz
 
-SAME = ("experiment", "scale", "config", "seed")  # what makes two parts one study
+_STUDY_KEYS = ("experiment", "scale", "config", "seed")  # what makes two parts one study
+_HISTORY_KEYS = ("resumed_with", "resumed_notes", "resumed_from_configs")  # a part's own
 
 
 def merge(out: str | Path, parts: list[str | Path]) -> dict:
     """Write the runs of every folder in ``parts`` into ``out`` (results.json and
-    reconstructions.npz); returns the merged results dict. The first part's notes and
-    versions head the file; ``parts`` records each part's folder, versions and runs, and
-    ``wall_seconds`` is the sum over the runs (the work, not the time it took side by side;
-    as `execute` counts it, a support estimate shared by several runs once)."""
+    reconstructions.npz), which must not hold a study yet; returns the merged results
+    dict. The first part's notes and versions head the file; ``parts`` records each part's
+    folder, runs, the machines that ran them (``machines``: every `versions` record, its
+    resumptions' and its own parts' too) and notes; ``wall_seconds`` is the sum over the
+    runs (the work, not the time it took side by side; as `execute` counts it, a support
+    estimate shared by several runs once)."""
     if not parts:
         raise ValueError("merge: `parts` is empty; expected at least one --out folder.")
-    out = Path(out)
-    if any(Path(p).resolve() == out.resolve() for p in parts):
+    out, parts = Path(out), [Path(p) for p in parts]
+    folders = [p.resolve() for p in parts]
+    if out.resolve() in folders:
         raise ValueError(f"merge: `out` {out} is one of the parts; write the merge elsewhere.")
+    if len(set(folders)) < len(folders):
+        raise ValueError("merge: a folder is named twice in `parts`.")
+    if (out / "results.json").exists():
+        raise ValueError(f"merge: `out` {out} already holds a study; choose an empty folder.")
     merged: dict | None = None
     volumes: dict[str, np.ndarray] = {}
-    for part in map(Path, parts):
+    kept: dict[str, dict] = {}  # each run's row, by its key in volumes and histories
+    for part in parts:
         for name in ("results.json", "reconstructions.npz"):
             if not (part / name).exists():
                 raise ValueError(f"merge: part {part} has no {name}.")
         results = json.loads((part / "results.json").read_text())
         if merged is None:
-            merged = {k: v for k, v in results.items() if k != "failures"}  # judged anew
+            # judged anew; the part's own history, kept in its entry; which part it was
+            dropped = ("failures", "part", *_HISTORY_KEYS)
+            merged = {k: v for k, v in results.items() if k not in dropped}
             merged |= {"rows": [], "histories": {}, "wall_seconds": 0.0, "parts": []}
-        for key in SAME:
+        for key in _STUDY_KEYS:
             if results[key] != merged[key]:
                 raise ValueError(
                     f"merge: part {part} is another study ({key} {results[key]!r}, the first "
@@ -55,25 +66,40 @@ def merge(out: str | Path, parts: list[str | Path]) -> dict:
             own = {key: saved[key] for key in saved.files}
         for row in results["rows"]:
             key = f"{row['scene']}/{row['run']}"
-            if key in volumes:
-                if not np.array_equal(volumes[key], own[key]):
+            if key not in own or key not in results["histories"]:
+                raise ValueError(
+                    f"merge: part {part} lacks the reconstruction or history of {key}."
+                )
+            if key in kept:
+                if not _same_run(kept[key], row, volumes[key], own[key]):
                     raise ValueError(f"merge: {key} was measured in two parts (again in {part}).")
                 continue  # a run both parts resumed from: kept once
-            volumes[key] = own[key]
+            kept[key], volumes[key] = row, own[key]
             merged["rows"].append(row)
             merged["histories"][key] = results["histories"][key]
-            merged["wall_seconds"] += _work(row)
+            merged["wall_seconds"] += _run_seconds(row)
         volumes |= {key: value for key, value in own.items() if key.startswith("truth/")}
-        merged["parts"].append(
-            {"folder": str(part), "runs": len(results["rows"]), "versions": results["versions"]}
-        )
+        earlier = [m for p in results.get("parts", []) for m in p["machines"]]
+        merged["parts"].append({
+            "folder": str(part),
+            "runs": len(results["rows"]),
+            "machines": [results["versions"], *results.get("resumed_with", []), *earlier],
+            "notes": [results.get("notes", {}), *results.get("resumed_notes", [])],
+        })  # fmt: skip
     check_writable(out)
     write_npz(out / "reconstructions.npz", volumes)
     write_json(out / "results.json", merged)
     return merged
 
 
-def _work(row: dict) -> float:
+def _same_run(row: dict, other: dict, volume: np.ndarray, other_volume: np.ndarray) -> bool:
+    """Whether two parts hold one measurement (copied from the folder both resumed from):
+    the same reconstruction, bit for bit, and the same times, which a rerun never repeats."""
+    times = all(row.get(k) == other.get(k) for k in ("wall_seconds", "fit_seconds"))
+    return times and np.array_equal(volume, other_volume)
+
+
+def _run_seconds(row: dict) -> float:
     """A run's share of a study's ``wall_seconds``: its own, less a support estimate it
     reused (``execute`` counts each estimate once)."""
     reused = row.get("support_seconds", 0.0) if row.get("support_reused") else 0.0
@@ -91,7 +117,7 @@ def cli(argv=None) -> dict:
     args = parser.parse_args(argv)
     try:
         merged = merge(args.out, args.parts)
-    except ValueError as error:
+    except (ValueError, OSError) as error:  # OSError: `out` cannot be written
         parser.error(str(error))
     print(
         f"{len(merged['rows'])} runs from {len(args.parts)} parts in {args.out}/; resume the "

@@ -1,7 +1,7 @@
 """Model mismatch: truths that no reconstruction grid holds.
 
     python -m experiments.mismatch [--scale quick|default|paper] [--out DIR] [--seed 0]
-                                   [--resume] [--no-progress]
+                                   [--resume] [--no-progress] [--part K/N]
 
 The paper's protocol synthesises data on a grid twice finer than the one it reconstructs
 on, so an eighth of the scatterers sit on the inverse grid's points. Here less of the

@@ -1,7 +1,7 @@
 """Ideas that could let RIFT beat FISTA where data are scarce and noisy, on the stress grid.
 
     python -m experiments.rift_ideas [--scale quick|default] [--out DIR] [--seed 0]
-                                     [--resume] [--no-progress]
+                                     [--resume] [--no-progress] [--part K/N]
 
 Each idea is `fit(method="rift-n")` at its defaults plus one option (`IDEAS`):
 

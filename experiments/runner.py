@@ -551,6 +551,13 @@ def execute(
         results["versions"] = versions()
         results |= {"notes": dict(notes or {})}
     results["planned_runs"] = len(runs)  # the report says when a stopped study is unfinished
+    asked = runs
+    results.pop("part", None)  # a folder of one part, resumed as a whole
+    if part is not None:  # one of several processes: the study's every part[1]-th run
+        asked = runs[part[0] - 1 :: part[1]]
+        if not asked:
+            raise ValueError(f"{name}: `part` {part[0]}/{part[1]} holds no run of the {len(runs)}.")
+        results["part"] = list(part)
     grids = {key: inverse for key in scenes} if not isinstance(inverse, Mapping) else inverse
     for key, scene in scenes.items():  # a Scene resampled, PointScatterers spread
         volumes[f"truth/{key}"] = np.asarray(scene.resample(grids[key]).reflectivity)
@@ -558,8 +565,12 @@ def execute(
     drawn = time.perf_counter()
     supports = SharedSupports(radar)
 
+    order = {(run.scene, run.label): k for k, run in enumerate(runs)}
+
     def save(final: bool):
         nonlocal drawn
+        # in the study's order, whatever order the runs were done in (parts, merges, resumes)
+        results["rows"].sort(key=lambda row: order[row["scene"], row["run"]])
         if analyse is not None:
             for row in results["rows"]:
                 volume = volumes[f"{row['scene']}/{row['run']}"]
@@ -571,7 +582,7 @@ def execute(
         if figures:
             drawn = time.perf_counter()
 
-    for run in runs if part is None else runs[part[0] - 1 :: part[1]]:
+    for run in asked:
         if any(r["scene"] == run.scene and r["run"] == run.label for r in results["rows"]):
             continue
         release_compiled_programs()
@@ -847,6 +858,7 @@ def parse(argv, doc: str, scales: Mapping, name: str, root: str = "results"):
 
 
 def _part(text: str) -> tuple[int, int]:
+    """``--part``'s K/N as (K, N), or argparse's error."""
     try:
         k, n = (int(x) for x in text.split("/"))
     except ValueError:
@@ -932,7 +944,7 @@ def environment_line(results: dict) -> str:
     parts = results.get("parts", [])  # experiments.merge: runs from several processes
     if len(parts) > 1:
         count += f" (in {len(parts)} parts run side by side; the time is their sum)"
-    resumed = [p["versions"] for p in parts[1:]] + results.get("resumed_with", [])
+    resumed = [m for p in parts for m in p["machines"]] + results.get("resumed_with", [])
     others = dict.fromkeys(_machine(r) for r in resumed if "devices" in r)
     others.pop(machine, None)
     if others:

@@ -2,7 +2,7 @@
 pyramid, least squares from 100-1000 viewpoints against RIFT from 100 and 1000.
 
     python -m experiments.simple_scenes [--scale quick|default|paper] [--out DIR] [--seed 0]
-                                        [--resume] [--no-progress]
+                                        [--resume] [--no-progress] [--part K/N]
 
 Each scene (ρ = 1) is synthesised on the forward grid at training viewpoints drawn from the
 paper's 51 × 51 grid and reconstructed on the 2× coarser inverse grid by block Kaczmarz

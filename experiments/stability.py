@@ -1,7 +1,7 @@
 """The stress grid: every method at its defaults, over scenes, views, noise and seeds.
 
     python -m experiments.stability [--scale quick|default|paper] [--out DIR] [--seed 0]
-                                    [--resume] [--no-progress]
+                                    [--resume] [--no-progress] [--part K/N]
 
 Each run is `rift_jax.fit` with the method's defaults (`DEFAULTS`: every method on
 ``support="auto"``, RIFT on an active set and stopped once converged) on one of the paper's

@@ -2,7 +2,7 @@
 when one reflects 1, 2, 3 or 4 times less than the other?
 
     python -m experiments.weak_target [--scale quick|default|paper] [--out DIR] [--seed 0]
-                                      [--resume] [--no-progress]
+                                      [--resume] [--no-progress] [--part K/N]
 
 Far field, radar 50 m away; two bars 0.72 × 2.4 × 0.48 m (x × y × z) with a 1.2 m gap
 along x, the one at negative x with ρ = 1, the other with ρ = 1, 1/2, 1/3, 1/4; viewpoints

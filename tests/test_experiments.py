@@ -317,16 +317,17 @@ def test_the_environment_line_names_the_accelerator_and_an_unfinished_study():
     assert "CPU cores, resumed on 2 CPU cores (cpu:0, cpu:1);" in runner.environment_line(resumed)
 
 
-def _part(folder, rows, seed=0, wall=30.0, first=0):
-    """A study's --out folder holding ``rows`` (scene, run), each of ``wall`` seconds, and
-    a volume for each (the k-th all ``first + k``)."""
-    versions = {"cpu_count": 16, "devices": ["cuda:0"], "device_kind": "NVIDIA H200"}
+def _study_folder(folder, rows, seed=0, first=0, kind="NVIDIA H200", **row):
+    """A study's --out folder holding ``rows`` (scene, run) of 30 s each (and ``row``'s
+    fields), run on a GPU of ``kind``, with a volume for each run (the k-th all
+    ``first + k``)."""
+    versions = {"cpu_count": 16, "devices": ["cuda:0"], "device_kind": kind}
     versions |= {"rift_jax": "0", "jax": "0", "python": "3"}
     results = {"experiment": "stability", "scale": "default", "config": {"extent": 4.8}}
-    results |= {"seed": seed, "wall_seconds": wall * len(rows), "versions": versions}
-    results |= {"rows": [{"scene": s, "run": r, "wall_seconds": wall} for s, r in rows]}
-    results["notes"] = {}
+    results |= {"seed": seed, "wall_seconds": 30.0 * len(rows), "versions": versions}
+    results |= {"rows": [{"scene": s, "run": r, "wall_seconds": 30.0} | row for s, r in rows]}
     results |= {"histories": {f"{s}/{r}": {"loss": [1.0]} for s, r in rows}, "failures": 0}
+    results |= {"notes": {"matmul": kind}, "part": [1, 2]}
     runner.write_json(folder / "results.json", results)
     volumes = {f"{s}/{r}": np.full(3, first + k, np.complex64) for k, (s, r) in enumerate(rows)}
     runner.write_npz(folder / "reconstructions.npz", volumes | {"truth/cube": np.ones(3)})
@@ -335,34 +336,54 @@ def _part(folder, rows, seed=0, wall=30.0, first=0):
 def test_merge_joins_the_parts_of_a_study_and_refuses_two_studies(tmp_path):
     from experiments import merge
 
-    _part(tmp_path / "a", [("cube", "FISTA 10"), ("cube", "LSMR 10")])
-    # b resumed from a copy of a's first run: that run is kept once
-    _part(tmp_path / "b", [("cube", "FISTA 10"), ("sphere", "FISTA 10")])
+    _study_folder(tmp_path / "a", [("cube", "FISTA 10"), ("cube", "LSMR 10")])
+    # b resumed from a copy of a's first run (kept once), on another GPU; its own run
+    # reused a support estimate of 5 s that an earlier run of b made
+    _study_folder(tmp_path / "b", [("cube", "FISTA 10")])
+    b = json.loads((tmp_path / "b" / "results.json").read_text())
+    b["rows"].append({"scene": "sphere", "run": "FISTA 10", "wall_seconds": 30.0,
+                      "support_reused": True, "support_seconds": 5.0})  # fmt: skip
+    b["histories"]["sphere/FISTA 10"] = {"loss": [1.0]}
+    b["resumed_with"] = [b["versions"] | {"device_kind": "NVIDIA H100"}]
+    runner.write_json(tmp_path / "b" / "results.json", b)
+    runner.write_npz(tmp_path / "b" / "reconstructions.npz", {
+        "cube/FISTA 10": np.zeros(3, np.complex64), "sphere/FISTA 10": np.ones(3, np.complex64),
+        "truth/cube": np.ones(3),
+    })  # fmt: skip
     merged = merge.merge(tmp_path / "all", [tmp_path / "a", tmp_path / "b"])
     saved = json.loads((tmp_path / "all" / "results.json").read_text())
     assert saved == json.loads(json.dumps(merged))
     runs = [(r["scene"], r["run"]) for r in saved["rows"]]
     assert runs == [("cube", "FISTA 10"), ("cube", "LSMR 10"), ("sphere", "FISTA 10")]
     assert set(saved["histories"]) == {f"{s}/{r}" for s, r in runs}
-    assert saved["wall_seconds"] == 90.0 and [p["runs"] for p in saved["parts"]] == [2, 2]
-    assert "failures" not in saved  # the resumed study judges every run anew
+    assert saved["wall_seconds"] == 85.0  # 3 runs of 30 s, less the reused estimate
+    assert [p["runs"] for p in saved["parts"]] == [2, 2]
+    assert "failures" not in saved and "part" not in saved  # the resumed study's own
+    assert saved["parts"][1]["notes"] == [{"matmul": "NVIDIA H200"}]
     with np.load(tmp_path / "all" / "reconstructions.npz") as volumes:
         assert set(volumes.files) == {f"{s}/{r}" for s, r in runs} | {"truth/cube"}
         np.testing.assert_array_equal(volumes["sphere/FISTA 10"], np.ones(3))  # b's own
     line = runner.environment_line(saved)
-    assert "3 runs (in 2 parts run side by side; the time is their sum) in 1.5 min" in line
+    assert "3 runs (in 2 parts run side by side; the time is their sum) in 1.4 min" in line
+    assert "NVIDIA H200 (cuda:0) and 16 CPU cores, resumed on 1 × NVIDIA H100" in line
 
-    _part(tmp_path / "again", [("cube", "LSMR 10")], first=5)  # measured again
-    _part(tmp_path / "seed1", [("cube", "RIFT(N) 10")], seed=1)
+    _study_folder(tmp_path / "again", [("cube", "LSMR 10")], first=1)  # the same volume...
+    _study_folder(tmp_path / "rerun", [("cube", "LSMR 10")], first=1, fit_seconds=2.0)
+    _study_folder(tmp_path / "seed1", [("cube", "RIFT(N) 10")], seed=1)
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "results.json").write_text("{}")
     for out, parts, message in (
-        ("joined", ["a", "again"], "cube/LSMR 10 was measured in two parts"),
+        ("joined", ["a", "rerun"], "cube/LSMR 10 was measured in two parts"),  # ... timed anew
         ("joined", ["a", "seed1"], r"another study \(seed 1"),
         ("joined", ["a", "missing"], "has no results.json"),
+        ("joined", ["a", "a"], "named twice"),
         ("a", ["a", "b"], "`out` .* is one of the parts"),
+        ("full", ["a", "b"], "already holds a study"),
     ):
         with pytest.raises(ValueError, match=message):
             merge.merge(tmp_path / out, [tmp_path / p for p in parts])
     assert not (tmp_path / "joined").exists()  # refused before anything was written
+    assert len(merge.merge(tmp_path / "joined", [tmp_path / "a", tmp_path / "again"])["rows"]) == 2
 
 
 def test_resume_reads_the_free_text_outcomes_of_older_files():

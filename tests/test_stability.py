@@ -2,6 +2,7 @@
 reconstruction is, or make it non-finite."""
 
 import warnings
+from types import SimpleNamespace
 
 import jax.numpy as jnp
 import numpy as np
@@ -187,8 +188,6 @@ def test_the_fits_nothing_check_reads_the_best_gain_on_training_views_only(tiny)
     data exactly at its best gain (no collapse, though its own residual ‖y − Aρ‖/‖y‖ is 3);
     the views held out are not read, however unlike the field their data are; a
     coarse-to-fine run's rendering is not judged by it, nor a run trained with another loss."""
-    from types import SimpleNamespace
-
     from rift_jax._solvers.inr.collapse import check_collapse
 
     radar, scene, train, _ = tiny
