@@ -390,7 +390,11 @@ def test_patience_stops_a_converged_run_and_keeps_the_best(tiny):
     assert rj.solvers.Recipe().patience == 10 and rj.solvers.RECIPES["paper"].patience is None
     radar, scene, train, _ = tiny
     common = dict(radar=radar, method="rift-n", granularity=0.5, progress=False)
-    common |= dict(epochs=60, learning_rate=2.5e-2, epoch_views=None)
+    # the budget well past where it stops: on this exactly explainable problem the loss falls
+    # by ≥ 1 % every few epochs for long (to epoch 92 with jax 0.10.2 on one CPU, before 60 on
+    # others: training is chaotic at float32 rounding), and a budget that runs out first
+    # ends it as BUDGET, not CONVERGED
+    common |= dict(epochs=200, learning_rate=2.5e-2, epoch_views=None)
     full = rj.fit(scene, train, patience=None, **common)
     stopped = rj.fit(scene, train, patience=3, min_improvement=1e-2, **common)
     assert full.stats["remedies"] == stopped.stats["remedies"] == []
@@ -406,13 +410,13 @@ def test_patience_stops_a_converged_run_and_keeps_the_best(tiny):
 
     run = stopped.stats["epochs_run"]
     assert stopped.stopped == rj.solvers.Stop(rj.solvers.Outcome.CONVERGED, run)
-    assert run == expected_stop(full.history.loss) < 60
+    assert run == expected_stop(full.history.loss) < 200
     np.testing.assert_array_equal(stopped.history.loss, full.history.loss[:run])
     loss = stopped.history.loss
     assert stopped.stats["best_epoch"] == int(np.argmin(loss)) + 1
     assert stopped.stats["best_loss"] == pytest.approx(loss.min())
-    assert full.stopped == rj.solvers.Stop(rj.solvers.Outcome.BUDGET, 60)
-    assert full.stats["epochs_run"] == 60
+    assert full.stopped == rj.solvers.Stop(rj.solvers.Outcome.BUDGET, 200)
+    assert full.stats["epochs_run"] == 200
     with pytest.raises(ValueError, match="patience"):
         rj.solvers.Recipe(patience=0)
 
