@@ -42,6 +42,7 @@ from .runner import (
 )
 
 GRIDS = Path("docs/results")  # the committed grids: stability_SCALE
+AUTO = "auto"  # `fit`'s choice between methods (rift_jax/_selection.py)
 # options a replay may not change: they would move a run to another cell's data
 FIXED = ("snr_db", "seed")
 
@@ -69,16 +70,25 @@ def parse_cell(text: str) -> tuple[str, int, float | None]:
 
 def runs(cfg: stability.Config, method: str, cells, extra: dict) -> list[Run]:
     """The grid's runs of ``method`` in ``cells`` (every seed the grid gives a cell), each
-    with ``extra`` options added."""
-    if method not in cfg.methods:
-        raise ValueError(f"`--method` must be one of {list(cfg.methods)}, got {method!r}.")
+    with ``extra`` options added. ``method`` ``"auto"``, which the grid does not run, runs
+    where FISTA did with `fit`'s defaults (`stability.DEFAULTS`): a new method on the
+    cells' own data."""
+    if method not in (*cfg.methods, AUTO):
+        raise ValueError(f"`--method` must be one of {[*cfg.methods, AUTO]}, got {method!r}.")
     if fixed := sorted(set(extra) & set(FIXED)):
         raise ValueError(f"`--options` may not set {fixed}: they choose the cell's data.")
+    template = "fista" if method == AUTO else method
     asked, found, out = set(cells), set(), []
     for run in stability.runs(cfg):
         cell = (run.scene, run.n_train, run.options.get("snr_db"))
-        if run.method == method and cell in asked:
-            out.append(dataclasses.replace(run, options=dict(run.options) | extra))
+        if run.method == template and cell in asked:
+            options = dict(run.options) | extra
+            if method == AUTO:
+                options = stability.DEFAULTS | _noise(run) | extra
+                run = dataclasses.replace(
+                    run, method=AUTO, label=stability.label(AUTO, run.n_train, cell[2], run.seed)
+                )
+            out.append(dataclasses.replace(run, options=options))
             found.add(cell)
     if missing := asked - found:
         names = ", ".join(f"{s}:{v}:{'none' if n is None else f'{n:g}'}" for s, v, n in missing)
@@ -87,6 +97,10 @@ def runs(cfg: stability.Config, method: str, cells, extra: dict) -> list[Run]:
             f"cell {names}."
         )
     return out
+
+
+def _noise(run: Run) -> dict:
+    return {"snr_db": run.options["snr_db"]} if "snr_db" in run.options else {}
 
 
 def load_grid(grid: Path, cfg: stability.Config) -> list[dict]:
@@ -113,8 +127,9 @@ def load_grid(grid: Path, cfg: stability.Config) -> list[dict]:
 
 def compare(rows: list[dict], grid_rows: list[dict], method: str) -> list[dict]:
     """Each replayed row with ``grid`` (the grid's own m-SSIM of the run, or None),
-    ``fista`` (FISTA's in the cell, or None) and ``failed`` (the grid's rule; None where the
-    grid has none of the cell). A cell's replays are judged together with the grid's other
+    ``fista`` (FISTA's in the cell, or None), ``best`` and ``best_method`` (the best of the
+    grid's other counted methods there, or None) and ``failed`` (the grid's rule; None where
+    the grid has none of the cell). A cell's replays are judged together with the grid's other
     methods there: the replays stand in for the grid's own runs of the method."""
     judged = {}
     for key in {stability._cell(row) for row in rows}:
@@ -129,11 +144,15 @@ def compare(rows: list[dict], grid_rows: list[dict], method: str) -> list[dict]:
                 and r["seed"] == row["seed"]]  # fmt: skip
         own = [r["m_ssim"] for r in same if r["method"] == method]
         fista = [r["m_ssim"] for r in same if r["method"] == "fista"]
+        counted = [r for r in same if r["method"] not in (method, stability.BASELINE)]
+        best = max(counted, key=lambda r: r["m_ssim"], default=None)
         out.append(
             row
             | {
                 "grid": own[0] if own else None,
                 "fista": fista[0] if fista else None,
+                "best": None if best is None else best["m_ssim"],
+                "best_method": None if best is None else best["method"],
                 "failed": judged.get((stability._cell(row), row["seed"])),
             }
         )
@@ -160,10 +179,15 @@ def report(results, cfg, out: Path, grid: Path | None, grid_rows: list[dict]) ->
             for r in results["rows"]]  # fmt: skip
     rows = compare(rows, grid_rows, cfg.replay_method)
     for saved, row in zip(results["rows"], rows, strict=True):
-        saved.update({key: row[key] for key in ("grid", "fista", "failed")})
+        saved.update({key: row[key] for key in ("grid", "fista", "best", "best_method", "failed")})
 
     def number(value):
         return "–" if value is None else f"{value:.3f}"
+
+    def best(row):
+        if row["best"] is None:
+            return "–"
+        return f"{row['best']:.3f} ({stability.LABELS[row['best_method']]})"
 
     def verdict(row):
         return "–" if row["failed"] is None else (row["failed"] or "no")
@@ -177,6 +201,7 @@ def report(results, cfg, out: Path, grid: Path | None, grid_rows: list[dict]) ->
         ("residual", lambda r: number(r["residual"])),
         ("the grid's run", lambda r: number(r["grid"])),
         ("FISTA", lambda r: number(r["fista"])),
+        ("the cell's best other", lambda r: best(r)),
         ("fails", verdict),
         ("s", lambda r: f"{r['wall_seconds']:.0f}"),
     ]

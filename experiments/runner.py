@@ -636,6 +636,8 @@ def execute(
         }
         if shared is not None:  # estimated once for every run on the same data
             row |= {"support_seconds": shared.seconds, "support_reused": shared.reused}
+        if "selection" in result.stats:  # method "auto": what it chose, and why
+            row["selection"] = result.stats["selection"]
         results["rows"].append(row)
         results["wall_seconds"] += wall + (own if shared and not shared.reused else 0.0)
         results["histories"][f"{run.scene}/{run.label}"] = history_record(history)

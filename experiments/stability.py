@@ -65,6 +65,7 @@ LABELS = {
     "fista": "FISTA",
     "lsmr": "LSMR",
     "kaczmarz": "Kaczmarz",
+    "auto": "Auto",  # not on the grid: replays of its cells (experiments.replay)
 }
 BASELINE = "kaczmarz"  # the paper's: reported, its failures not counted
 DEFAULTS = {"support": "auto"}

@@ -48,7 +48,11 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument("data", type=Path, help="a RadarData saved by rift_jax.save (.npz, .h5)")
     fit.add_argument("--extent", type=float, required=True, help="grid half-width (m)")
     fit.add_argument("--granularity", type=float, required=True, help="grid spacing (m)")
-    fit.add_argument("--method", default=None, help="fista (default), rift-n, lsmr, ...")
+    fit.add_argument(
+        "--method",
+        default=None,
+        help="auto (default: fista or rift-n, chosen on held-out views), fista, rift-n, ...",
+    )
     fit.add_argument(
         "--support",
         choices=("auto", "none"),

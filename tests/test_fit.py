@@ -11,6 +11,8 @@ import pytest
 
 import rift_jax as rj
 from rift_jax._fit import _at_points
+from rift_jax._geometry import spread
+from rift_jax._selection import holdout_residual
 from rift_jax._solvers.methods import METHODS
 from rift_jax._support import mask_at
 
@@ -295,7 +297,7 @@ def test_least_squares_solves_for_the_points_of_a_finer_grid(small_cube):
     at the inverse grid's points (nested: every other fine point), and `predict`
     synthesises from `trained`."""
     radar, scene, train, test = small_cube  # data on a 0.5 m grid; inverse grid 1 m
-    options = dict(radar=radar, iterations=5, progress=False)
+    options = dict(radar=radar, method="fista", iterations=5, progress=False)
     seen = []  # what a monitor sees: the best so far on the inverse grid, as `scene`
     result = rj.fit(
         scene, train, train_granularity=0.5, monitor=lambda *a: seen.append(a[2]()), **options
@@ -338,14 +340,12 @@ def test_a_finer_grids_values_at_the_inverse_grids_points():
 # -- defaults and the checks after a fit ---------------------------------------------------
 
 
-def test_defaults_are_fista_on_the_estimated_support(small_cube):
-    """`fit(scene, viewpoints)`: FISTA (the stress grid's best at every method's defaults)
-    on ``support="auto"``, exactly the mask `estimate_support` gives; `support=None` is the
+def test_every_method_defaults_to_the_estimated_support(small_cube):
+    """``support="auto"``, exactly the mask `estimate_support` gives; `support=None` is the
     whole grid."""
     radar, scene, train, _ = small_cube
-    options = dict(radar=radar, granularity=0.5, iterations=5, progress=False)
+    options = dict(radar=radar, granularity=0.5, method="fista", iterations=5, progress=False)
     result = rj.fit(scene, train, **options)
-    assert result.method == "fista"
     data = rj.synthesize(scene, train, radar)
     grid = rj.Scene.empty(scene.extent, 0.5)
     expected = rj.estimate_support(data.signal, train, grid, radar=radar)
@@ -413,3 +413,126 @@ def test_failed_fit_warnings_name_the_cause():
             _warn_if_failed("rift-s", stats, False)
     with pytest.warns(rj.FitWarning, match="smooth-blob"):  # a collapse at 0 dB
         _warn_if_failed("rift-n", {"data_residual": 0.98, "coherence": 0.55}, False, 0.707)
+
+
+# -- method="auto": the candidate that predicts held-out viewpoints best ----------------------
+
+
+def test_holdout_residual_is_the_best_gain_residual():
+    """√(1 − c²) against the residual at the least-squares complex gain, by lstsq in float64:
+    scale-free, 0 for a perfect prediction, 1 for none."""
+    rng = np.random.default_rng(0)
+    y = rng.normal(size=(3, 4, 2, 2)) + 1j * rng.normal(size=(3, 4, 2, 2))
+    p = y + 0.7 * (rng.normal(size=y.shape) + 1j * rng.normal(size=y.shape))
+    gain = np.linalg.lstsq(p.reshape(-1, 1), y.ravel(), rcond=None)[0]
+    expected = np.linalg.norm(y.ravel() - p.ravel() * gain) / np.linalg.norm(y)
+    assert holdout_residual(p, y) == pytest.approx(expected, rel=1e-9)
+    assert holdout_residual((2 - 3j) * p, y) == pytest.approx(expected, rel=1e-9)
+    assert holdout_residual(-5j * y, y) == pytest.approx(0.0, abs=1e-7)
+    assert holdout_residual(np.zeros_like(y), y) == 1.0
+
+
+AUTO_CANDIDATES = {  # the first barely moves from zero, so the second must win
+    "kaczmarz": {"iterations": 1, "relaxation": 0.01},
+    "lsmr": {"iterations": 40, "tol": 0.0},
+}
+
+
+def test_auto_fits_the_candidate_that_predicts_held_out_views_best(small_cube):
+    """Each candidate is fitted on the training views less a fifth, evenly spread, on one
+    support; its score is the held-out residual of its prediction (recomputed here from a
+    fit of its own); the lower wins, though listed second; the result is then that
+    method's fit on every view, bit for bit, with the selection's time added."""
+    radar, scene, train, _ = small_cube
+    result = rj.fit(
+        scene, train, radar=radar, method="auto", candidates=AUTO_CANDIDATES, progress=False
+    )
+    selection = result.stats["selection"]
+    held = selection["holdout_views"]
+    assert held == spread(len(train), 6).tolist()
+    kept = np.setdiff1d(np.arange(len(train)), held)
+    signal = np.asarray(rj.synthesize(scene, train, radar).signal)
+    for method, options in AUTO_CANDIDATES.items():
+        alone = rj.fit(
+            signal[kept], train.subset(kept), radar=radar, method=method, extent=2.0,
+            granularity=1.0, support=result.support, progress=False, **options,
+        )  # fmt: skip
+        predicted = alone.predict(train.subset(held)).signal
+        expected = holdout_residual(predicted, signal[held])
+        assert selection["scores"][method]["holdout_residual"] == pytest.approx(expected)
+    scores = {m: s["holdout_residual"] for m, s in selection["scores"].items()}
+    assert scores["lsmr"] < scores["kaczmarz"] and selection["chosen"] == result.method == "lsmr"
+    direct = rj.fit(scene, train, radar=radar, method="lsmr", support=result.support,
+                    progress=False, **AUTO_CANDIDATES["lsmr"])  # fmt: skip
+    np.testing.assert_array_equal(result.scene.reflectivity, direct.scene.reflectivity)
+    expected_support = rj.estimate_support(signal, train, rj.Scene.empty(2.0, 1.0), radar=radar)
+    np.testing.assert_array_equal(result.support, expected_support)
+    assert result.seconds > selection["seconds"] > 0 and "support_seconds" in result.stats
+
+
+# a RIFT run that cannot move (a learning rate of 1e-12) from its start: a collapse
+COLLAPSING = {"epochs": 3, "learning_rate": 1e-12, "retries": 0, "patience": None}
+
+
+def test_auto_from_too_few_views_runs_its_first_candidate(small_cube):
+    """4 views: holding out 2 would leave 2 to fit on, under `MIN_TRAINING`; nothing is
+    scored, and the first candidate runs alone."""
+    radar, scene, train, _ = small_cube
+    few = train[:4]
+    result = rj.fit(
+        scene, few, radar=radar, method="auto", candidates=AUTO_CANDIDATES, progress=False
+    )
+    assert result.method == "kaczmarz" and result.stats["selection"]["scores"] == {}
+    assert result.stats["selection"]["holdout_views"] == []
+
+
+def test_auto_passes_over_a_candidate_that_collapsed(small_cube):
+    """A RIFT candidate that collapsed ranks after one that did not, whatever its score;
+    a final fit that collapses gives way to the next candidate (its CollapseWarning is
+    recorded, not raised); only when every one collapsed is the warning raised."""
+    radar, scene, train, _ = small_cube
+    candidates = {"rift-n": COLLAPSING, "lsmr": AUTO_CANDIDATES["lsmr"]}
+    options = dict(radar=radar, method="auto", candidates=candidates, progress=False)
+    scored = rj.fit(scene, train, **options)
+    selection = scored.stats["selection"]
+    assert selection["scores"]["rift-n"]["collapse"] is not None
+    assert selection["scores"]["lsmr"]["collapse"] is None and scored.method == "lsmr"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing raised: the collapse is only recorded
+        unscored = rj.fit(scene, train[:4], **options)  # too few views: in the given order
+    assert unscored.method == "lsmr"
+    assert unscored.stats["selection"]["rejected"]["rift-n"] is not None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        alone = rj.fit(scene, train[:4], **options | {"candidates": {"rift-n": COLLAPSING}})
+    assert alone.method == "rift-n" and alone.stats["collapse"] is not None
+    assert rj.solvers.CollapseWarning in {w.category for w in caught}
+
+
+def test_auto_refuses_what_it_cannot_honour(small_cube):
+    radar, scene, train, _ = small_cube
+    auto = dict(radar=radar, method="auto")
+    with pytest.raises(ValueError, match=r"takes no solver option\(s\) \['iterations'\]"):
+        rj.fit(scene, train, iterations=5, **auto)
+    with pytest.raises(ValueError, match="no `monitor` or `time_limit`"):
+        rj.fit(scene, train, time_limit=5.0, **auto)
+    for bad in ("fista", ["fista", "fista"], ["fista", "points"], [], {"fista": 3}, [1]):
+        with pytest.raises(ValueError, match="`candidates"):
+            rj.fit(scene, train, candidates=bad, **auto)
+    with pytest.raises(ValueError, match=r"method 'lsmr' takes no option\(s\) \['relaxation'\]"):
+        rj.fit(scene, train, candidates={"lsmr": {"relaxation": 1.0}}, **auto)
+
+
+def test_the_default_method_chooses_between_fista_and_rift(small_cube):
+    """`fit(scene, viewpoints)` is ``method="auto"`` over FISTA and RIFT(N), each at its
+    defaults: the lower held-out residual wins, and the result is that method's own fit on
+    every viewpoint, bit for bit."""
+    radar, scene, train, _ = small_cube
+    result = rj.fit(scene, train, radar=radar, progress=False)
+    selection = result.stats["selection"]
+    assert selection["candidates"] == ["fista", "rift-n"]
+    scores = {m: s["holdout_residual"] for m, s in selection["scores"].items()}
+    assert result.method == selection["chosen"] == min(scores, key=scores.get)
+    direct = rj.fit(scene, train, radar=radar, method=result.method, support=result.support,
+                    progress=False)  # fmt: skip
+    np.testing.assert_array_equal(result.scene.reflectivity, direct.scene.reflectivity)

@@ -1,0 +1,208 @@
+"""``fit(method="auto")``: choose a method by how well it predicts viewpoints it never saw.
+
+No one method is best everywhere: on the stress grid at every method's defaults FISTA was
+within 0.05 m-SSIM of the best method in 103 of 150 cells and RIFT(N) in 105, and each
+lost by far where the other won (docs/solvers.md, "Which method"). A cell's unseen test
+views told them apart: picking the method whose predicted test signals had the lower phase
+error would have been within 0.05 of the best in 139. A user has no test views, so
+``"auto"`` makes its own from the training views: it holds out a few (evenly spread in
+their order, as RIFT's `holdout`), fits each candidate on the rest on one shared support,
+scores each by how well it predicts the held-out signals, and fits the winner again on
+every viewpoint. Its cost is the candidates' fits on four fifths of the views on top of
+the winner's own fit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from ._fit import AUTO, FitResult, FitWarning, _data, fit
+from ._geometry import Radar, Viewpoints, spread
+from ._operator import grt_operator
+from ._scenes import Scene
+from ._solvers import CollapseWarning, Diverged
+from ._solvers.methods import METHODS
+from ._support import estimate_support
+
+CANDIDATES = ("fista", "rift-n")
+"""``"auto"``'s candidates, the two methods that were best in some cells of the stress grid
+(FISTA in 77 of 150, RIFT(N) in 73; no other in any): the first also wins ties and runs
+alone where too few viewpoints leave none to hold out."""
+HOLDOUT_SHARE = 0.2  # of the training viewpoints, held out to score the candidates ...
+MIN_HOLDOUT = 2  # ... but at least this many
+MIN_TRAINING = 3  # and this many left to fit on: below, the first candidate runs alone
+_FAILED = (FitWarning, CollapseWarning)  # warnings that a candidate likely failed
+
+
+def holdout_residual(predicted, signal) -> float:
+    """min over a complex gain g of ‖y − g·p‖/‖y‖, √(1 − c²) with c = |⟨y, p⟩|/(‖y‖‖p‖):
+    how much of the held-out signals ``signal`` (y) the prediction ``predicted`` (p)
+    leaves unexplained, whatever its scale (`FitResult.predict` normalises). Noise in y
+    adds the same to every candidate's on average, so it ranks them by the noise-free
+    signals' residual; 1 where p is zero."""
+    p, y = (np.asarray(x, np.complex128).ravel() for x in (predicted, signal))
+    norms = np.linalg.norm(p) * np.linalg.norm(y)
+    coherence = min(abs(np.vdot(y, p)) / norms, 1.0) if norms > 0 else 0.0
+    return float(np.sqrt(1.0 - coherence**2))
+
+
+def fit_auto(
+    data,
+    viewpoints: Viewpoints,
+    *,
+    radar: Radar | None,
+    granularity: float | None,
+    extent: float | None,
+    snr_db: float | None,
+    support,
+    seed: int,
+    progress: bool,
+    monitor,
+    time_limit: float | None,
+    candidates: Sequence[str] | Mapping[str, Mapping] = CANDIDATES,
+    **options,
+) -> FitResult:
+    """`fit` with ``method="auto"``: its arguments, and ``candidates``, the methods to
+    choose from (see `fit`). `PointScatterers` are fitted on the grid, as by any grid
+    method (``method="points"``, which fits them off the grid, is no candidate)."""
+    if options:
+        raise ValueError(
+            f"fit: method {AUTO!r} takes no solver option(s) {sorted(options)}: they differ "
+            f"between its candidates; name a method to pass them (or `candidates`)."
+        )
+    if monitor is not None or time_limit is not None:
+        raise ValueError(
+            f"fit: method {AUTO!r} runs several fits, so it takes no `monitor` or `time_limit` "
+            "(each is one run's); name a method to use them."
+        )
+    candidates = _check_candidates(candidates)
+    given = {"granularity": granularity, "extent": extent, "snr_db": snr_db}
+    signal, _, radar, extent, granularity = _data(data, viewpoints, radar, extent,
+                                                  granularity, snr_db, seed)  # fmt: skip
+    signal = np.asarray(signal)
+    grid = Scene.empty(extent, granularity)
+    grt_operator(radar, viewpoints, grid.points())  # refuses a grid that reaches the radar
+    start = time.perf_counter()
+    estimate = {}
+    if isinstance(support, str) and support == "auto" and np.any(signal):
+        support = estimate_support(signal, viewpoints, grid, radar=radar)  # once, for all
+        estimate["support_seconds"] = time.perf_counter() - start
+    n = len(viewpoints)
+    k = max(MIN_HOLDOUT, round(HOLDOUT_SHARE * n))
+    scores: dict[str, dict] = {}
+    ranking, held = list(candidates), np.array([], np.int64)
+    if n - k >= MIN_TRAINING and len(candidates) > 1 and np.any(signal):  # zero data: zero
+        held = spread(n, k)
+        kept = np.setdiff1d(np.arange(n), held)
+        for method in candidates:
+            scores[method] = _score(
+                method, candidates[method], signal, viewpoints, kept, held, grid, support,
+                radar, seed, progress,
+            )  # fmt: skip
+        # the lower held-out residual first (the first listed on a tie), after every
+        # candidate that did not collapse
+        ranking.sort(
+            key=lambda m: (scores[m]["collapse"] is not None, scores[m]["holdout_residual"])
+        )
+    rejected, attempts = {}, []
+    for method in ranking:  # a final fit that collapsed gives way to the next candidate
+        attempts.append(_recorded(
+            fit, data, viewpoints, method=method, support=support, seed=seed,
+            progress=progress, radar=radar, **given, **candidates[method],
+        ))  # fmt: skip
+        result, caught = attempts[-1]
+        if result.stats.get("collapse") is None:
+            break
+        rejected[method] = result.stats["collapse"]
+    else:  # every one collapsed: the best ranked, saying so
+        result, caught = attempts[0]
+    for warning in caught:
+        warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+    seconds = time.perf_counter() - start  # as fit's: from the estimate on, no synthesis
+    selection = {
+        "candidates": list(candidates),
+        "chosen": result.method,
+        "holdout_views": held.tolist(),
+        "scores": scores,
+        "rejected": rejected,
+        "seconds": seconds - result.seconds,
+    }
+    stats = result.stats | estimate | {"selection": selection}
+    return dataclasses.replace(result, seconds=seconds, stats=stats)
+
+
+def _recorded(call, *args, **kwargs):
+    """(``call(*args, **kwargs)``, the warnings that it likely failed, recorded and not
+    raised); other warnings go on to the user."""
+    with warnings.catch_warnings(record=True) as caught:
+        for category in _FAILED:
+            warnings.simplefilter("always", category)
+        result = call(*args, **kwargs)
+    failed = []
+    for warning in caught:
+        if issubclass(warning.category, _FAILED):
+            failed.append(warning)
+        else:
+            warnings.warn_explicit(
+                warning.message, warning.category, warning.filename, warning.lineno
+            )
+    return result, failed
+
+
+def _check_candidates(candidates) -> dict[str, dict]:
+    """``candidates`` as {method: its options}: a sequence of names (each at its defaults)
+    or a mapping of names to option dicts."""
+    grid_methods = sorted(m for m, method in METHODS.items() if not method.scatterers)
+    out = {}
+    if isinstance(candidates, Mapping):
+        out = dict(candidates)
+    elif isinstance(candidates, Sequence) and not isinstance(candidates, str):
+        if all(isinstance(name, str) for name in candidates):
+            out = {name: {} for name in candidates}
+        if len(out) != len(candidates):  # a name twice
+            out = {}
+    if not out or not set(out) <= set(grid_methods):
+        raise ValueError(
+            f"fit: `candidates` must name distinct grid methods (from {grid_methods}), as a "
+            f"sequence or a mapping to each one's options, got {candidates!r}."
+        )
+    for name, options in out.items():
+        if not isinstance(options, Mapping):
+            raise ValueError(
+                f"fit: `candidates[{name!r}]` must be a mapping of `fit` options, got "
+                f"{type(options).__name__}."
+            )
+        METHODS[name].check(name, options)  # `monitor` and the like are no method's options
+    return {name: dict(options) for name, options in out.items()}
+
+
+def _score(method, options, signal, viewpoints, kept, held, grid, support, radar, seed, progress):
+    """One candidate fitted on the ``kept`` viewpoints and scored on the ``held`` ones: its
+    held-out residual, seconds, stop, collapse (RIFT's, or None) and the messages of the
+    warnings that it likely failed (recorded, not raised: the final fit raises its own)."""
+    start = time.perf_counter()
+
+    def run():
+        try:
+            return fit(
+                signal[kept], viewpoints.subset(kept), radar=radar, method=method,
+                extent=grid.extent, granularity=grid.granularity, support=support, seed=seed,
+                progress=progress, **options,
+            )  # fmt: skip
+        except Diverged as error:  # scored on its best iterate, as a study scores one
+            return error.result
+
+    result, caught = _recorded(run)
+    residual = holdout_residual(result.predict(viewpoints.subset(held)).signal, signal[held])
+    return {
+        "holdout_residual": residual,
+        "seconds": time.perf_counter() - start,
+        "stopped": result.stopped.outcome.value,
+        "collapse": result.stats.get("collapse"),
+        "warnings": [str(w.message) for w in caught],
+    }
