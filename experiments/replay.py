@@ -19,6 +19,11 @@ sets today's default, complex MSE, beside them:
     python -m experiments.replay --method rift-n --options '{}' \\
         --cells cube:30:none cube:30:0 parking_lot:100:none ...
 
+``--method auto`` runs `fit`'s default, which the grid does not run, in the cells with
+`fit`'s defaults (``--options`` added to them; at the quick scale each candidate with the
+scale's budget), judged with the grid's five methods there: how docs/experiments.md
+measured it.
+
 Writes results.json, results.md and reconstructions.npz into ``--out`` (default
 ``results/replay_SCALE``).
 """
@@ -84,7 +89,7 @@ def runs(cfg: stability.Config, method: str, cells, extra: dict) -> list[Run]:
         if run.method == template and cell in asked:
             options = dict(run.options) | extra
             if method == AUTO:
-                options = stability.DEFAULTS | _noise(run) | extra
+                options = stability.DEFAULTS | _noise(run) | _auto_budgets(cfg) | extra
                 run = dataclasses.replace(
                     run, method=AUTO, label=stability.label(AUTO, run.n_train, cell[2], run.seed)
                 )
@@ -97,6 +102,15 @@ def runs(cfg: stability.Config, method: str, cells, extra: dict) -> list[Run]:
             f"cell {names}."
         )
     return out
+
+
+def _auto_budgets(cfg: stability.Config) -> dict:
+    """``candidates``, `fit`'s default ones in its order, with the scale's budgets (the
+    quick scale's), or nothing (the defaults)."""
+    budgets = dict(cfg.budgets)
+    if not budgets:
+        return {}
+    return {"candidates": {m: dict(budgets.get(m, ())) for m in ("fista", "rift-n")}}
 
 
 def _noise(run: Run) -> dict:
@@ -209,7 +223,9 @@ def report(results, cfg, out: Path, grid: Path | None, grid_rows: list[dict]) ->
         f"# Stress-grid cells replayed, scale `{results['scale']}`",
         "",
         f"{stability.LABELS[cfg.replay_method]} on each cell's own data with "
-        f"`{json.dumps(cfg.replay_options)}` added to the grid's options; beside it the grid's "
+        f"`{json.dumps(cfg.replay_options)}` added to "
+        + ("`fit`'s defaults" if cfg.replay_method == AUTO else "the grid's options")
+        + "; beside it the grid's "
         f"own run and FISTA's from {grid if grid is not None else '(no grid given)'}. A "
         "replay fails by the grid's rule, judged with the grid's other methods in its cell."
         + _losses(rows, grid_rows, cfg.replay_method),
@@ -265,7 +281,7 @@ def cli(argv=None) -> dict:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--cells", nargs="+", required=True, help="SCENE:VIEWS:NOISE ...")
-    parser.add_argument("--method", default="rift-n")
+    parser.add_argument("--method", default="rift-n", help="a grid method, or auto")
     parser.add_argument("--options", default="{}", help="a JSON object of `fit` options")
     parser.add_argument("--scale", choices=list(stability.SCALES), default="default")
     parser.add_argument(

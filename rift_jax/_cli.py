@@ -64,7 +64,8 @@ def _parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="a method option, e.g. --option iterations=200 (VALUE read as JSON, else text)",
+        help="a method option, e.g. --option iterations=200 (VALUE read as JSON, else text); "
+        "the default method, auto, takes none but candidates={...}: name --method to pass one",
     )
     fit.add_argument("--public", action="store_true", help="DATA is in the authors' NPZ layout")
     fit.add_argument("--seed", type=int, default=0)

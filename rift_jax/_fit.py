@@ -43,9 +43,9 @@ DEFAULT_METHOD = AUTO
 """`fit`'s method when none is named: FISTA or RIFT(N), whichever predicts held-out
 viewpoints better (`rift_jax._selection`). Neither alone is best everywhere on the stress
 grid at their defaults: FISTA never failed and leads from 10 views, RIFT(N) leads from 30
-and 100 views and failed 3 times at −10 dB (docs/solvers.md, "Which method"). Replayed on
-20 of the grid's cells, the choice was within 0.05 m-SSIM of the best method in 19, FISTA
-alone in 15 and RIFT(N) in 11, at the cost of about three fits."""
+and 100 views and failed 3 times at −10 dB. The choice, replayed on cells of that grid,
+came closer to each cell's best than either alone, at the cost of about three fits
+(docs/experiments.md, "`fit`'s default: a choice on held-out views")."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -316,28 +316,12 @@ def fit(
             time_limit=time_limit, **options,
         )  # fmt: skip
     chosen = METHODS[method]
-    chosen.check(method, options)
-    for name, value in options.items():  # e.g. tol=nan: no comparison with it ever stops
-        if isinstance(value, float | np.floating) and not np.isfinite(value):
-            raise ValueError(f"fit: option `{name}` must be finite, got {value!r}.")
-    fine_start = options.get("train_granularity") is not None and options.get("x0") is not None
-    if fine_start and not chosen.inr:
-        raise ValueError(
-            "fit: `x0` is a start on the inverse grid; it cannot start a solve on the points "
-            "of `train_granularity`'s grid (leave one out)."
-        )
+    check_options(method, options)
     signal, scale, radar, extent, granularity = _data(
         scene_or_signal, viewpoints, radar, extent, granularity, snr_db, seed
     )
     grid = Scene.empty(extent, granularity)
-    fine_granularity = options.get("train_granularity")
-    if fine_granularity is not None and not (  # checked before a support estimate's cost
-        isinstance(fine_granularity, int | float) and 0 < fine_granularity < granularity
-    ):
-        raise ValueError(
-            "fit: `train_granularity` must be finer than the inverse grid's "
-            f"granularity ({granularity} m) and > 0, got {fine_granularity!r}."
-        )
+    check_train_granularity(options, granularity)  # before a support estimate's cost
     if isinstance(scene_or_signal, RadarData):  # measured data that say their noise
         snr_db = scene_or_signal.snr_db
     if chosen.scatterers:
@@ -489,6 +473,32 @@ def fit(
     except Diverged as error:
         error.result = result(error.solution)
         raise
+
+
+def check_options(method: str, options: dict) -> None:
+    """A ValueError for an option ``method`` does not take, a non-finite one, or a start
+    that cannot go with ``train_granularity``: what `fit` checks before any work."""
+    METHODS[method].check(method, options)
+    for name, value in options.items():  # e.g. tol=nan: no comparison with it ever stops
+        if isinstance(value, float | np.floating) and not np.isfinite(value):
+            raise ValueError(f"fit: option `{name}` must be finite, got {value!r}.")
+    fine_start = options.get("train_granularity") is not None and options.get("x0") is not None
+    if fine_start and not METHODS[method].inr:
+        raise ValueError(
+            "fit: `x0` is a start on the inverse grid; it cannot start a solve on the points "
+            "of `train_granularity`'s grid (leave one out)."
+        )
+
+
+def check_train_granularity(options: dict, granularity: float) -> None:
+    """A ValueError unless ``options``' `train_granularity` (if any) is finer than the
+    inverse grid's ``granularity``."""
+    fine = options.get("train_granularity")
+    if fine is not None and not (isinstance(fine, int | float) and 0 < fine < granularity):
+        raise ValueError(
+            "fit: `train_granularity` must be finer than the inverse grid's "
+            f"granularity ({granularity} m) and > 0, got {fine!r}."
+        )
 
 
 def _fit_scatterers(

@@ -21,11 +21,19 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from ._fit import AUTO, FitResult, FitWarning, _data, fit
+from ._fit import (
+    AUTO,
+    FitResult,
+    FitWarning,
+    _data,
+    check_options,
+    check_train_granularity,
+    fit,
+)
 from ._geometry import Radar, Viewpoints, spread
 from ._operator import grt_operator
 from ._scenes import Scene
-from ._solvers import CollapseWarning, Diverged
+from ._solvers import CollapseWarning, Diverged, Outcome
 from ._solvers.methods import METHODS
 from ._support import estimate_support
 
@@ -82,9 +90,14 @@ def fit_auto(
         )
     candidates = _check_candidates(candidates)
     given = {"granularity": granularity, "extent": extent, "snr_db": snr_db}
-    signal, _, radar, extent, granularity = _data(data, viewpoints, radar, extent,
-                                                  granularity, snr_db, seed)  # fmt: skip
-    signal = np.asarray(signal)
+    with warnings.catch_warnings():  # e.g. a grid that does not nest: the final fit says it
+        warnings.simplefilter("ignore")
+        signal, scale, radar, extent, granularity = _data(
+            data, viewpoints, radar, extent, granularity, snr_db, seed
+        )
+    signal = np.asarray(signal) * scale  # in the input's units, as a given `init` field is
+    for own in candidates.values():
+        check_train_granularity(own, granularity)
     grid = Scene.empty(extent, granularity)
     grt_operator(radar, viewpoints, grid.points())  # refuses a grid that reaches the radar
     start = time.perf_counter()
@@ -105,25 +118,25 @@ def fit_auto(
                 radar, seed, progress,
             )  # fmt: skip
         # the lower held-out residual first (the first listed on a tie), after every
-        # candidate that did not collapse
+        # candidate that collapsed or diverged
         ranking.sort(
-            key=lambda m: (scores[m]["collapse"] is not None, scores[m]["holdout_residual"])
+            key=lambda m: (scores[m]["failure"] is not None, scores[m]["holdout_residual"])
         )
     rejected, attempts = {}, []
-    for method in ranking:  # a final fit that collapsed gives way to the next candidate
-        attempts.append(_recorded(
-            fit, data, viewpoints, method=method, support=support, seed=seed,
-            progress=progress, radar=radar, **given, **candidates[method],
-        ))  # fmt: skip
-        result, caught = attempts[-1]
-        if result.stats.get("collapse") is None:
+    for method in ranking:  # a final fit that fails gives way to the next candidate
+        attempts.append(
+            _final(method, data, viewpoints, support, seed, progress, radar, given, candidates)
+        )
+        result, caught, failure = attempts[-1]
+        if failure is None:
             break
-        rejected[method] = result.stats["collapse"]
-    else:  # every one collapsed: the best ranked, saying so
-        result, caught = attempts[0]
-    for warning in caught:
-        warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
-    seconds = time.perf_counter() - start  # as fit's: from the estimate on, no synthesis
+        rejected[method] = str(failure)
+    else:  # every one failed: the best ranked, saying so (and raising, if it diverged)
+        result, caught, failure = attempts[0]
+    for warning in caught:  # at the line that called fit
+        warnings.warn(warning.message, warning.category, stacklevel=3)
+    # as fit's: from the estimate on (the final fits' synthesis of a Scene included)
+    seconds = time.perf_counter() - start
     selection = {
         "candidates": list(candidates),
         "chosen": result.method,
@@ -133,7 +146,24 @@ def fit_auto(
         "seconds": seconds - result.seconds,
     }
     stats = result.stats | estimate | {"selection": selection}
-    return dataclasses.replace(result, seconds=seconds, stats=stats)
+    result = dataclasses.replace(result, seconds=seconds, stats=stats)
+    if isinstance(failure, Diverged):
+        failure.result = result
+        raise failure
+    return result
+
+
+def _final(method, data, viewpoints, support, seed, progress, radar, given, candidates):
+    """The fit of ``method`` on every viewpoint: (result, the warnings that it likely
+    failed, recorded, and its failure: RIFT's collapse, a `Diverged`, or None)."""
+    try:
+        result, caught = _recorded(
+            fit, data, viewpoints, method=method, support=support, seed=seed,
+            progress=progress, radar=radar, **given, **candidates[method],
+        )  # fmt: skip
+    except Diverged as error:
+        return error.result, [], error
+    return result, caught, result.stats.get("collapse")
 
 
 def _recorded(call, *args, **kwargs):
@@ -147,10 +177,8 @@ def _recorded(call, *args, **kwargs):
     for warning in caught:
         if issubclass(warning.category, _FAILED):
             failed.append(warning)
-        else:
-            warnings.warn_explicit(
-                warning.message, warning.category, warning.filename, warning.lineno
-            )
+        else:  # at the line that called fit: _recorded, _score or _final, fit_auto, fit
+            warnings.warn(warning.message, warning.category, stacklevel=5)
     return result, failed
 
 
@@ -177,14 +205,16 @@ def _check_candidates(candidates) -> dict[str, dict]:
                 f"fit: `candidates[{name!r}]` must be a mapping of `fit` options, got "
                 f"{type(options).__name__}."
             )
-        METHODS[name].check(name, options)  # `monitor` and the like are no method's options
+        check_options(name, options)  # `monitor` and the like are no method's options
     return {name: dict(options) for name, options in out.items()}
 
 
 def _score(method, options, signal, viewpoints, kept, held, grid, support, radar, seed, progress):
     """One candidate fitted on the ``kept`` viewpoints and scored on the ``held`` ones: its
-    held-out residual, seconds, stop, collapse (RIFT's, or None) and the messages of the
-    warnings that it likely failed (recorded, not raised: the final fit raises its own)."""
+    held-out residual, seconds, stop, failure (RIFT's collapse, a divergence, or None) and
+    the messages of the warnings that it likely failed (recorded, not raised: the final fit
+    raises its own; given an array, the fit knows no noise level, so their judgement
+    assumes none)."""
     start = time.perf_counter()
 
     def run():
@@ -194,15 +224,18 @@ def _score(method, options, signal, viewpoints, kept, held, grid, support, radar
                 extent=grid.extent, granularity=grid.granularity, support=support, seed=seed,
                 progress=progress, **options,
             )  # fmt: skip
-        except Diverged as error:  # scored on its best iterate, as a study scores one
+        except Diverged as error:  # scored on its best iterate, and ranked last
             return error.result
 
     result, caught = _recorded(run)
     residual = holdout_residual(result.predict(viewpoints.subset(held)).signal, signal[held])
+    failure = result.stats.get("collapse")
+    if result.stopped.outcome is Outcome.DIVERGED:
+        failure = f"diverged ({result.stopped})"
     return {
         "holdout_residual": residual,
         "seconds": time.perf_counter() - start,
         "stopped": result.stopped.outcome.value,
-        "collapse": result.stats.get("collapse"),
+        "failure": failure,
         "warnings": [str(w.message) for w in caught],
     }

@@ -643,6 +643,39 @@ def test_replay_repeats_the_grids_own_runs_with_the_options_added():
     assert {run.seed for run in replay.runs(several, "fista", cells[:1], {})} == {0, 1, 2}
 
 
+def test_replay_runs_fits_default_where_the_grid_ran_fista():
+    """``--method auto``, which the grid does not run, runs in each cell on FISTA's run's
+    data (views, seed, noise) with `fit`'s defaults (and, at the quick scale, each
+    candidate with the scale's budget), labelled as its own method."""
+    for scale in ("default", "quick"):
+        cfg = stability.SCALES[scale]
+        cell = (cfg.scenes[0], cfg.views[-1], 0.0)
+        (run,) = replay.runs(cfg, "auto", [cell], {})
+        (fista,) = [r for r in stability.runs(cfg) if r.method == "fista"
+                    and (r.scene, r.n_train, r.options.get("snr_db")) == cell]  # fmt: skip
+        assert run.method == "auto" and run.label == fista.label.replace("FISTA", "Auto")
+        assert (run.n_train, run.seed) == (fista.n_train, fista.seed)
+        expected = stability.DEFAULTS | {"snr_db": 0.0}
+        if scale == "quick":  # the scale's small budgets, per candidate, FISTA first
+            budgets = dict(cfg.budgets)
+            expected |= {"candidates": {m: dict(budgets[m]) for m in ("fista", "rift-n")}}
+        assert run.options == expected
+        if scale == "quick":  # in fit's order: the first candidate wins ties
+            assert list(run.options["candidates"]) == ["fista", "rift-n"]
+
+
+def test_replay_names_the_cells_best_other_method():
+    """``best``: the best of the grid's counted methods in the cell on the same seed
+    (Kaczmarz, the baseline, and the replayed method's own runs left out)."""
+    base = {"options": {}, "residual": 0.9, "m_cos": 0.5, "t_iou": 0.5, "p_rmse": 1.0,
+            "noise": "noise-free", "scene": "cube", "n_train": 30}  # fmt: skip
+    grid = [base | {"seed": seed, "method": m, "m_ssim": v} for seed, m, v in (
+        (1, "rift-n", 0.8), (1, "fista", 0.6), (1, "kaczmarz", 0.95), (2, "fista", 0.99),
+    )]  # fmt: skip
+    (row,) = replay.compare([base | {"seed": 1, "method": "auto", "m_ssim": 0.7}], grid, "auto")
+    assert (row["best"], row["best_method"], row["grid"]) == (0.8, "rift-n", None)
+
+
 def test_replay_judges_a_replayed_run_with_the_grids_other_methods():
     """The replay stands beside the grid's own run and FISTA's on the same seed, and fails
     by the grid's rule against the other methods of its cell, its own method's grid runs

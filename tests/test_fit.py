@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import rift_jax as rj
+from rift_jax import _selection
 from rift_jax._fit import _at_points
 from rift_jax._geometry import spread
 from rift_jax._selection import holdout_residual
@@ -486,17 +487,21 @@ def test_auto_from_too_few_views_runs_its_first_candidate(small_cube):
     assert result.stats["selection"]["holdout_views"] == []
 
 
-def test_auto_passes_over_a_candidate_that_collapsed(small_cube):
-    """A RIFT candidate that collapsed ranks after one that did not, whatever its score;
-    a final fit that collapses gives way to the next candidate (its CollapseWarning is
-    recorded, not raised); only when every one collapsed is the warning raised."""
+def test_auto_passes_over_a_candidate_that_collapsed(small_cube, monkeypatch):
+    """A RIFT candidate that collapsed ranks after one that did not, even with the lower
+    held-out residual (given it here); a final fit that collapses gives way to the next
+    candidate (its warning not raised; `rejected` names the collapse); only when every one
+    collapsed is the warning raised."""
     radar, scene, train, _ = small_cube
     candidates = {"rift-n": COLLAPSING, "lsmr": AUTO_CANDIDATES["lsmr"]}
     options = dict(radar=radar, method="auto", candidates=candidates, progress=False)
+    residuals = iter([0.1, 0.5])  # in the candidates' order: the collapsed RIFT scores best
+    monkeypatch.setattr(_selection, "holdout_residual", lambda *_: next(residuals))
     scored = rj.fit(scene, train, **options)
     selection = scored.stats["selection"]
-    assert selection["scores"]["rift-n"]["collapse"] is not None
-    assert selection["scores"]["lsmr"]["collapse"] is None and scored.method == "lsmr"
+    assert selection["scores"]["rift-n"]["holdout_residual"] == 0.1
+    assert selection["scores"]["rift-n"]["failure"] is not None
+    assert selection["scores"]["lsmr"]["failure"] is None and scored.method == "lsmr"
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # nothing raised: the collapse is only recorded
         unscored = rj.fit(scene, train[:4], **options)  # too few views: in the given order
@@ -507,6 +512,20 @@ def test_auto_passes_over_a_candidate_that_collapsed(small_cube):
         alone = rj.fit(scene, train[:4], **options | {"candidates": {"rift-n": COLLAPSING}})
     assert alone.method == "rift-n" and alone.stats["collapse"] is not None
     assert rj.solvers.CollapseWarning in {w.category for w in caught}
+    assert all(w.filename == __file__ for w in caught)  # at the line that called fit
+
+
+def test_auto_on_noisy_data_is_the_chosen_methods_own_fit(small_cube):
+    """With ``snr_db`` and a seed, the final fit draws the very noise the candidates were
+    scored on: the result is the chosen method's fit on the same noisy data, bit for bit."""
+    radar, scene, train, _ = small_cube
+    noisy = dict(radar=radar, snr_db=0.0, seed=3, progress=False)
+    result = rj.fit(scene, train, method="auto", candidates=AUTO_CANDIDATES, **noisy)
+    chosen = result.method
+    direct = rj.fit(scene, train, method=chosen, support=result.support,
+                    **noisy, **AUTO_CANDIDATES[chosen])  # fmt: skip
+    np.testing.assert_array_equal(result.scene.reflectivity, direct.scene.reflectivity)
+    assert result.residual == direct.residual
 
 
 def test_auto_refuses_what_it_cannot_honour(small_cube):

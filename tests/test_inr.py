@@ -262,7 +262,7 @@ def test_rift_overfits_a_tiny_scene(tiny):
     np.testing.assert_allclose(result.render(0.5).reflectivity, result.scene.reflectivity, 1e-4)
 
 
-@pytest.mark.slow  # RIFT(S), with steps of its own; RIFT is not `fit`'s default method
+@pytest.mark.slow  # RIFT(S), with steps of its own; no candidate of `fit`'s default
 def test_rift_s_end_to_end_and_seeded(tiny):
     radar, scene, train, test = tiny
     options = dict(radar=radar, method="rift-s", epochs=3, progress=False)

@@ -212,7 +212,8 @@ METHODS = {
 }
 
 
-# `fit`'s default method and RIFT(N); the others (~10-20 s each) with `-m slow`
+# FISTA and RIFT(N), the candidates of `fit`'s default; the others (~10-20 s each) with
+# `-m slow`
 @pytest.mark.parametrize("method", default_then_slow(("fista", "rift-n"), METHODS))
 def test_what_each_solver_compiles(compiled, caplog, method):
     """A real run of each solver, on a problem size no other test uses (so that it compiles

@@ -57,7 +57,8 @@ def test_signal_scale_changes_nothing(small_cube, method, options, factors, tole
 
 
 @pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # tiny budgets: RIFT fits little
-# `fit`'s default method; the paper's two (~20-45 s each) with `-m slow`
+# FISTA, the first candidate of `fit`'s default; the paper's two (~20-45 s each) with
+# `-m slow`
 @pytest.mark.parametrize("method", default_then_slow(["fista"], ["kaczmarz", "rift-n"]))
 def test_noise_degrades_smoothly_and_never_gives_nan(finer_problem, method):
     """From noise-free data through 30, 20, 10, 0 and -10 dB SNR the metrics stay finite and

@@ -46,7 +46,7 @@ def test_a_support_holding_the_scene_gives_the_full_grid_answer(small_cube, arou
     assert kept.stats["support_leak"] < 1e-2  # nothing left outside to explain
 
 
-# `fit`'s default method and RIFT(N); the others (~10 s each) with `-m slow`
+# FISTA and RIFT(N), the candidates of `fit`'s default; the others (~10 s each) with `-m slow`
 @pytest.mark.parametrize(
     "method", default_then_slow(["fista", "rift-n"], ["kaczmarz", "gauss-newton", "rift-s"])
 )
@@ -292,7 +292,8 @@ def test_a_padded_operator_is_the_operator_with_zero_columns(small_radar, rng, c
     assert not compilations(caplog, lambda: (whole.fn(on_padding), whole.fn.adjoint(signal)))
 
 
-# `fit`'s default method in the default run; the others (~15 s each) with `-m slow`
+# FISTA, the first candidate of `fit`'s default, in the default run; the others (~15 s each)
+# with `-m slow`
 @pytest.mark.parametrize(
     "method", default_then_slow(["fista"], ["lsmr", "kaczmarz", "gauss-newton"])
 )
