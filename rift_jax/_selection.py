@@ -89,12 +89,33 @@ def fit_auto(
             "(each is one run's); name a method to use them."
         )
     candidates = _check_candidates(candidates)
+    # Every fit below would repeat the input's warnings (a grid that does not nest, a
+    # phaseless signal): they are collected and each said once, at the caller's line, also
+    # when a fit raises
+    caught: list = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            return _choose(
+                data, viewpoints, candidates, radar=radar, granularity=granularity,
+                extent=extent, snr_db=snr_db, support=support, seed=seed, progress=progress,
+            )  # fmt: skip
+    finally:
+        said = set()
+        for warning in caught:
+            if (key := (warning.category, str(warning.message))) not in said:
+                said.add(key)
+                warnings.warn(warning.message, warning.category, stacklevel=3)
+
+
+def _choose(
+    data, viewpoints, candidates, *, radar, granularity, extent, snr_db, support, seed, progress
+) -> FitResult:
+    """`fit_auto`'s work, on checked arguments."""
     given = {"granularity": granularity, "extent": extent, "snr_db": snr_db}
-    with warnings.catch_warnings():  # e.g. a grid that does not nest: the final fit says it
-        warnings.simplefilter("ignore")
-        signal, scale, radar, extent, granularity = _data(
-            data, viewpoints, radar, extent, granularity, snr_db, seed
-        )
+    signal, scale, radar, extent, granularity = _data(
+        data, viewpoints, radar, extent, granularity, snr_db, seed
+    )
     signal = np.asarray(signal) * scale  # in the input's units, as a given `init` field is
     for own in candidates.values():
         check_train_granularity(own, granularity)
@@ -133,8 +154,8 @@ def fit_auto(
         rejected[method] = str(failure)
     else:  # every one failed: the best ranked, saying so (and raising, if it diverged)
         result, caught, failure = attempts[0]
-    for warning in caught:  # at the line that called fit
-        warnings.warn(warning.message, warning.category, stacklevel=3)
+    for warning in caught:  # the final fit's: `fit_auto` says them to the caller
+        warnings.warn(warning.message, warning.category, stacklevel=2)
     # as fit's: from the estimate on (the final fits' synthesis of a Scene included)
     seconds = time.perf_counter() - start
     selection = {
@@ -177,8 +198,8 @@ def _recorded(call, *args, **kwargs):
     for warning in caught:
         if issubclass(warning.category, _FAILED):
             failed.append(warning)
-        else:  # at the line that called fit: _recorded, _score or _final, fit_auto, fit
-            warnings.warn(warning.message, warning.category, stacklevel=5)
+        else:  # `fit_auto` says them to the caller
+            warnings.warn(warning.message, warning.category, stacklevel=2)
     return result, failed
 
 

@@ -555,3 +555,16 @@ def test_the_default_method_chooses_between_fista_and_rift(small_cube):
     direct = rj.fit(scene, train, radar=radar, method=result.method, support=result.support,
                     progress=False)  # fmt: skip
     np.testing.assert_array_equal(result.scene.reflectivity, direct.scene.reflectivity)
+
+
+def test_auto_says_each_warning_once_at_the_callers_line(small_cube):
+    """Each fit inside "auto" meets the same input: a grid that does not nest warns once,
+    not once per fit, and at the line that called `fit`."""
+    radar, scene, train, _ = small_cube
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rj.fit(scene, train, radar=radar, granularity=0.8, candidates=AUTO_CANDIDATES,
+               progress=False)  # fmt: skip
+    grid = [str(w.message) for w in caught if issubclass(w.category, rj.GridWarning)]
+    assert grid and len(grid) == len(set(grid))  # the non-nesting grid's, each once
+    assert all(w.filename == __file__ for w in caught)
