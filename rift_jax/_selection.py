@@ -32,7 +32,7 @@ from ._fit import (
 )
 from ._geometry import Radar, Viewpoints, spread
 from ._operator import grt_operator
-from ._scenes import Scene
+from ._scenes import GridWarning, Scene
 from ._solvers import CollapseWarning, Diverged, Outcome
 from ._solvers.methods import METHODS
 from ._support import estimate_support
@@ -45,6 +45,7 @@ HOLDOUT_SHARE = 0.2  # of the training viewpoints, held out to score the candida
 MIN_HOLDOUT = 2  # ... but at least this many
 MIN_TRAINING = 3  # and this many left to fit on: below, the first candidate runs alone
 _FAILED = (FitWarning, CollapseWarning)  # warnings that a candidate likely failed
+_OURS = (*_FAILED, GridWarning)  # rift_jax's warnings about a fit or its input
 
 
 def holdout_residual(predicted, signal) -> float:
@@ -56,6 +57,8 @@ def holdout_residual(predicted, signal) -> float:
     p, y = (np.asarray(x, np.complex128).ravel() for x in (predicted, signal))
     norms = np.linalg.norm(p) * np.linalg.norm(y)
     coherence = min(abs(np.vdot(y, p)) / norms, 1.0) if norms > 0 else 0.0
+    if not np.isfinite(coherence):  # a non-finite prediction explains nothing
+        coherence = 0.0
     return float(np.sqrt(1.0 - coherence**2))
 
 
@@ -90,22 +93,43 @@ def fit_auto(
         )
     candidates = _check_candidates(candidates)
     # Every fit below would repeat the input's warnings (a grid that does not nest, a
-    # phaseless signal): they are collected and each said once, at the caller's line, also
-    # when a fit raises
+    # phaseless signal): rift_jax's are collected and each said once, at the caller's line,
+    # also when a fit raises; the others (JAX's, ...) go on from where they were raised
     caught: list = []
     try:
         with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            return _choose(
+            for category in _OURS:
+                warnings.simplefilter("always", category)
+            result = _choose(
                 data, viewpoints, candidates, radar=radar, granularity=granularity,
                 extent=extent, snr_db=snr_db, support=support, seed=seed, progress=progress,
             )  # fmt: skip
-    finally:
-        said = set()
-        for warning in caught:
-            if (key := (warning.category, str(warning.message))) not in said:
+    except BaseException as error:  # said, but never in place of the error itself
+        for raised in _say(caught):
+            error.add_note(f"{type(raised).__name__}: {raised}")
+        raise
+    for raised in _say(caught):  # the user's filter made a warning an error
+        raise raised
+    return result
+
+
+def _say(caught) -> list[Warning]:
+    """Say each of rift_jax's ``caught`` warnings once, at the line that called `fit`, and
+    the others where they were raised; returns those the user's filters raised instead."""
+    said, raised = set(), []
+    for warning in caught:
+        try:
+            if not issubclass(warning.category, _OURS):
+                warnings.warn_explicit(
+                    warning.message, warning.category, warning.filename, warning.lineno
+                )
+            elif (key := (warning.category, str(warning.message))) not in said:
                 said.add(key)
-                warnings.warn(warning.message, warning.category, stacklevel=3)
+                # _say, fit_auto, fit, the caller
+                warnings.warn(warning.message, warning.category, stacklevel=4)
+        except Warning as error:
+            raised.append(error)
+    return raised
 
 
 def _choose(
@@ -190,16 +214,20 @@ def _final(method, data, viewpoints, support, seed, progress, radar, given, cand
 def _recorded(call, *args, **kwargs):
     """(``call(*args, **kwargs)``, the warnings that it likely failed, recorded and not
     raised); other warnings go on to the user."""
-    with warnings.catch_warnings(record=True) as caught:
-        for category in _FAILED:
-            warnings.simplefilter("always", category)
-        result = call(*args, **kwargs)
     failed = []
-    for warning in caught:
-        if issubclass(warning.category, _FAILED):
-            failed.append(warning)
-        else:  # `fit_auto` says them to the caller
-            warnings.warn(warning.message, warning.category, stacklevel=2)
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            for category in _FAILED:
+                warnings.simplefilter("always", category)
+            result = call(*args, **kwargs)
+    finally:  # also when ``call`` raises: what it said is not lost
+        for warning in caught:
+            if issubclass(warning.category, _FAILED):
+                failed.append(warning)
+            else:  # on to `fit_auto`, which says them to the caller
+                warnings.warn_explicit(
+                    warning.message, warning.category, warning.filename, warning.lineno
+                )
     return result, failed
 
 

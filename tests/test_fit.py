@@ -502,6 +502,7 @@ def test_auto_passes_over_a_candidate_that_collapsed(small_cube, monkeypatch):
     assert selection["scores"]["rift-n"]["holdout_residual"] == 0.1
     assert selection["scores"]["rift-n"]["failure"] is not None
     assert selection["scores"]["lsmr"]["failure"] is None and scored.method == "lsmr"
+    assert selection["rejected"] == {}  # ranked after LSMR: its final fit never ran
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # nothing raised: the collapse is only recorded
         unscored = rj.fit(scene, train[:4], **options)  # too few views: in the given order
@@ -568,3 +569,23 @@ def test_auto_says_each_warning_once_at_the_callers_line(small_cube):
     grid = [str(w.message) for w in caught if issubclass(w.category, rj.GridWarning)]
     assert grid and len(grid) == len(set(grid))  # the non-nesting grid's, each once
     assert all(w.filename == __file__ for w in caught)
+
+
+def test_auto_keeps_its_warnings_and_its_errors_when_a_fit_raises(small_cube):
+    """A phaseless signal on an empty support: the first candidate's fit raises, and the
+    warning is still said (once); with warnings as errors, the fit's own error comes out,
+    the warning in its notes."""
+    radar, scene, train, _ = small_cube
+    magnitudes = np.abs(np.asarray(rj.synthesize(scene, train, radar).signal))
+    stop = dict(support=np.zeros((5,) * 3, bool), extent=2.0, granularity=1.0, radar=radar)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(ValueError, match="no points"):
+            rj.fit(magnitudes, train, **stop)
+    phaseless = [w for w in caught if "carries no phase" in str(w.message)]
+    assert len(phaseless) == 1 and phaseless[0].filename == __file__
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match="no points") as info:
+            rj.fit(magnitudes, train, **stop)
+    assert any("carries no phase" in note for note in info.value.__notes__)
