@@ -231,13 +231,18 @@ def fit(
       is held out; each of ``candidates`` (default ``("fista", "rift-n")``; or a mapping
       of methods to their options) is fitted on the rest, on one support estimated once
       from every viewpoint; the one whose prediction of the held-out signals leaves the
-      lower residual ‖y − g·Aρ‖/‖y‖ at its best complex gain g wins (the first on a tie),
-      and is fitted again on every viewpoint: the result is that method's, with
-      ``stats["selection"]`` (each candidate's held-out residual, seconds, stop and the
-      warnings it raised, which are not raised again) and the selection's time counted in
-      ``seconds``. It takes no solver options (they differ between methods; give them in
-      ``candidates``) and no `monitor` or `time_limit`. From fewer than 5 viewpoints,
-      or on a zero signal, the first candidate runs alone.
+      lower residual ‖y − g·Aρ‖/‖y‖ at its best complex gain g wins (the first on a tie;
+      one that collapsed or diverged ranks last), and is fitted again on every viewpoint
+      (if that fit collapses or diverges, the next candidate is, and ``rejected`` says
+      why): the result is that method's, with ``stats["selection"]`` (each candidate's
+      held-out residual, seconds, stop, failure and the warnings that it likely failed,
+      which are recorded, not raised) and the whole choice's time in ``seconds``. The
+      input's warnings (a grid that does not nest, a phaseless signal) are said once, after
+      the fits; a warnings filter that makes them errors raises them then (or, when a fit
+      raised, adds them to its error's notes). It takes no solver options (they differ
+      between methods; give them in ``candidates``) and no `monitor` or `time_limit`.
+      From fewer than 5 viewpoints, or on a zero signal, the candidates are tried in
+      their order, unscored.
     - `granularity`, `extent`: the inverse grid (metres).
     - `snr_db`: noise added to synthesised signals (Scene input only).
     - `support`: which grid points may be non-zero. ``"auto"`` (the default, for every
