@@ -589,3 +589,59 @@ def test_auto_keeps_its_warnings_and_its_errors_when_a_fit_raises(small_cube):
         with pytest.raises(ValueError, match="no points") as info:
             rj.fit(magnitudes, train, **stop)
     assert any("carries no phase" in note for note in info.value.__notes__)
+
+
+def test_auto_gives_way_when_a_final_fit_diverges(small_cube, monkeypatch):
+    """A final fit that diverges gives way to the next candidate, as a collapse does; if
+    it was the only one, its `Diverged` is raised with the selection in ``.result``. (The
+    divergence is a stand-in: the winner's real fit on every view, raised as diverged.)"""
+    radar, scene, train, _ = small_cube
+    real = _selection.fit
+
+    def diverging(data, viewpoints, *, method, **options):
+        result = real(data, viewpoints, method=method, **options)
+        if method == "lsmr" and len(viewpoints) == len(train):  # the final fit only
+            error = rj.solvers.Diverged("lsmr: a stand-in divergence", None)
+            error.result = result
+            raise error
+        return result
+
+    monkeypatch.setattr(_selection, "fit", diverging)
+    first_lsmr = {"lsmr": AUTO_CANDIDATES["lsmr"], "kaczmarz": AUTO_CANDIDATES["kaczmarz"]}
+    options = dict(radar=radar, method="auto", progress=False)
+    result = rj.fit(scene, train, candidates=first_lsmr, **options)
+    selection = result.stats["selection"]
+    assert (
+        selection["scores"]["lsmr"]["holdout_residual"]
+        < (selection["scores"]["kaczmarz"]["holdout_residual"])
+    )  # LSMR won the split ...
+    assert result.method == "kaczmarz"  # ... and gave way when its final fit diverged
+    assert "stand-in divergence" in selection["rejected"]["lsmr"]
+    with pytest.raises(rj.solvers.Diverged) as info:
+        rj.fit(scene, train, candidates={"lsmr": AUTO_CANDIDATES["lsmr"]}, **options)
+    assert info.value.result.stats["selection"]["chosen"] == "lsmr"
+
+
+def test_auto_ranks_a_candidate_that_diverged_on_the_split_last(small_cube, monkeypatch):
+    """A candidate whose fit on the split diverged is scored on its best iterate but ranks
+    after every one that did not, even with the lower held-out residual."""
+    radar, scene, train, _ = small_cube
+    real = _selection.fit
+
+    def diverging(data, viewpoints, *, method, **options):
+        result = real(data, viewpoints, method=method, **options)
+        if method == "lsmr" and len(viewpoints) < len(train):  # the split's fit only
+            error = rj.solvers.Diverged("lsmr: a stand-in divergence", None)
+            stopped = rj.solvers.Stop(rj.solvers.Outcome.DIVERGED, 1)
+            error.result = dataclasses.replace(result, stopped=stopped)
+            raise error
+        return result
+
+    monkeypatch.setattr(_selection, "fit", diverging)
+    first_lsmr = {"lsmr": AUTO_CANDIDATES["lsmr"], "kaczmarz": AUTO_CANDIDATES["kaczmarz"]}
+    result = rj.fit(scene, train, radar=radar, method="auto", candidates=first_lsmr,
+                    progress=False)  # fmt: skip
+    scores = result.stats["selection"]["scores"]
+    assert scores["lsmr"]["holdout_residual"] < scores["kaczmarz"]["holdout_residual"]
+    assert scores["lsmr"]["failure"].startswith("diverged")
+    assert result.method == "kaczmarz" and result.stats["selection"]["rejected"] == {}
