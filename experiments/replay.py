@@ -87,13 +87,13 @@ def runs(cfg: stability.Config, method: str, cells, extra: dict) -> list[Run]:
     for run in stability.runs(cfg):
         cell = (run.scene, run.n_train, run.options.get("snr_db"))
         if run.method == template and cell in asked:
-            options = dict(run.options) | extra
             if method == AUTO:
                 options = stability.DEFAULTS | _noise(run) | _auto_budgets(cfg) | extra
-                run = dataclasses.replace(
-                    run, method=AUTO, label=stability.label(AUTO, run.n_train, cell[2], run.seed)
-                )
-            out.append(dataclasses.replace(run, options=options))
+                label = stability.label(AUTO, run.n_train, cell[2], run.seed)
+                run = dataclasses.replace(run, method=AUTO, label=label, options=options)
+            else:
+                run = dataclasses.replace(run, options=dict(run.options) | extra)
+            out.append(run)
             found.add(cell)
     if missing := asked - found:
         names = ", ".join(f"{s}:{v}:{'none' if n is None else f'{n:g}'}" for s, v, n in missing)

@@ -414,15 +414,7 @@ def grt_operator(
             f"grt_operator: `grid_points` must have shape (V, 3) with V ≥ 1, got {points.shape}."
         )
     positions, orientations = viewpoints.poses(radar)
-    reach, distance = _reach(positions, points)
-    if reach >= distance:
-        # this keeps the points off the antennas, where the GRT's 1/R amplitudes diverge (a
-        # voxel at an antenna gave |S| ≈ 1e9 and swamped every other voxel)
-        raise ValueError(
-            f"grt_operator: `grid_points` reach {reach:.4g} m from the scene's centre, but the "
-            f"radar stands {distance:g} m away (Radar.distance, or the nearest pose): every "
-            "point must lie closer to the centre than the radar."
-        )
+    _check_inside(positions, points)
     if chunk_size is not None:
         check_positive_int("grt_operator: `chunk_size`", chunk_size)
     if pad_to is not None:
@@ -440,6 +432,24 @@ def grt_operator(
     amplitude = _amplitude_for(radar, (positions, orientations), points)
     poses = split(positions), split(orientations)
     return GRTOperator(GRT(radar, *poses, split(points), chunk_size, live, amplitude))
+
+
+def check_inside(radar: Radar, viewpoints: Viewpoints, points: np.ndarray) -> None:
+    """`grt_operator`'s ValueError for ``points`` that reach the radar, without building
+    an operator (for a caller that must refuse them before other work)."""
+    _check_inside(viewpoints.poses(radar)[0], np.asarray(points, np.float64))
+
+
+def _check_inside(positions: np.ndarray, points: np.ndarray) -> None:
+    reach, distance = _reach(positions, points)
+    if reach >= distance:
+        # this keeps the points off the antennas, where the GRT's 1/R amplitudes diverge (a
+        # voxel at an antenna gave |S| ≈ 1e9 and swamped every other voxel)
+        raise ValueError(
+            f"grt_operator: `grid_points` reach {reach:.4g} m from the scene's centre, but the "
+            f"radar stands {distance:g} m away (Radar.distance, or the nearest pose): every "
+            "point must lie closer to the centre than the radar."
+        )
 
 
 def _reach(positions: np.ndarray, points: np.ndarray) -> tuple[float, float]:

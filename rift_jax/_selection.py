@@ -31,7 +31,7 @@ from ._fit import (
     fit,
 )
 from ._geometry import Radar, Viewpoints, spread
-from ._operator import grt_operator
+from ._operator import check_inside
 from ._scenes import GridWarning, Scene
 from ._solvers import CollapseWarning, Diverged, Outcome
 from ._solvers.methods import METHODS
@@ -144,17 +144,18 @@ def _choose(
     for own in candidates.values():
         check_train_granularity(own, granularity)
     grid = Scene.empty(extent, granularity)
-    grt_operator(radar, viewpoints, grid.points())  # refuses a grid that reaches the radar
+    check_inside(radar, viewpoints, grid.points())  # as fit does, before the estimate
     start = time.perf_counter()
     estimate = {}
-    if isinstance(support, str) and support == "auto" and np.any(signal):
+    nonzero = bool(np.any(signal))  # zero data: zero, and no support to estimate
+    if isinstance(support, str) and support == "auto" and nonzero:
         support = estimate_support(signal, viewpoints, grid, radar=radar)  # once, for all
         estimate["support_seconds"] = time.perf_counter() - start
     n = len(viewpoints)
     k = max(MIN_HOLDOUT, round(HOLDOUT_SHARE * n))
     scores: dict[str, dict] = {}
     ranking, held = list(candidates), np.array([], np.int64)
-    if n - k >= MIN_TRAINING and len(candidates) > 1 and np.any(signal):  # zero data: zero
+    if n - k >= MIN_TRAINING and len(candidates) > 1 and nonzero:
         held = spread(n, k)
         kept = np.setdiff1d(np.arange(n), held)
         for method in candidates:
