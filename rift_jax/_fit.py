@@ -222,8 +222,10 @@ def fit(
       method's defaults), ``"kaczmarz"`` (the paper's baseline), ``"lsmr"`` (lineax),
       ``"gauss-newton"`` (optimistix; ``damped=True`` for Levenberg-Marquardt), or RIFT:
       ``"rift-n"`` / ``"rift-s"`` (an INR trained with optax; see `rift_jax.solvers.rift`
-      and `Recipe`), or ``"points"``: point scatterers at continuous positions, on no
-      grid (`rift_jax.solvers.point_scatterers`; for scenes of a few dozen isolated
+      and `Recipe`; where the noise level is known, as below, its stopping rule and
+      collapse check count the loss above the noise's share), or ``"points"``: point
+      scatterers at continuous positions, on no grid
+      (`rift_jax.solvers.point_scatterers`; for scenes of a few dozen isolated
       scatterers, which no grid holds; ``support`` does not apply, the checks below do not
       run, and the noise level, from ``snr_db``, a `RadarData`'s own, or ``noise=`` in the
       signal's units, sets when it stops). ``"auto"`` is the method that predicts
@@ -354,6 +356,8 @@ def fit(
     if chosen.seeded:
         options = {"seed": seed, **options}
     solver_options = options
+    if "noise" in chosen.options:  # RIFT: what of its loss is noise (`rift`'s `noise`)
+        solver_options = options | _noise(options, signal, scale, snr_db)
     if isinstance(options.get("init"), Field):  # a result's field is in the scene's units
         solver_options = {**options, "init": options["init"].scaled(1 / scale)}
     if chosen.inr:  # the grid's coordinate scale, with or without a support
@@ -520,13 +524,7 @@ def _fit_scatterers(
     if monitor is not None or time_limit is not None:
         raise ValueError(f"fit: method {method!r} takes no `monitor` or `time_limit`.")
     del progress  # a run is a few dozen rounds, each reported in its history
-    solver_options = dict(options)
-    if solver_options.get("noise") is not None:  # given in the signal's units: the solver
-        solver_options["noise"] = solver_options["noise"] / scale  # sees it normalised
-    elif snr_db is not None:  # σ per sample of the normalised data, as `synthesize` adds it
-        power = float(np.mean(np.abs(np.asarray(signal)) ** 2))
-        ratio = 10 ** (-snr_db / 10)
-        solver_options["noise"] = float(np.sqrt(power * ratio / (1 + ratio)))
+    solver_options = options | _noise(options, signal, scale, snr_db)
     start = time.perf_counter()
     solution = METHODS[method].solve(signal, viewpoints, radar, grid.extent, **solver_options)
     seconds = time.perf_counter() - start
@@ -552,6 +550,26 @@ def _fit_scatterers(
         scene, solution.history, seconds, method, options, solution.stopped, radar,
         viewpoints, stats, points=points,
     )  # fmt: skip
+
+
+def _noise(options: dict, signal, scale: float, snr_db: float | None) -> dict:
+    """``{"noise": σ}`` for a method that takes the noise's standard deviation per sample
+    (`points`, RIFT), in the solver's units (the signal normalised by ``scale``): the
+    user's ``noise`` (in the signal's units), else the σ that ``snr_db`` implies, as
+    `synthesize` adds it; ``{}`` when neither is known."""
+    if (noise := options.get("noise")) is not None:
+        finite = isinstance(noise, int | float | np.floating) and not isinstance(noise, bool)
+        if not (finite and np.isfinite(noise) and noise >= 0):
+            raise ValueError(
+                "fit: `noise` must be a finite number ≥ 0 (the noise's standard deviation "
+                f"per sample, in the signal's units) or None, got {noise!r}."
+            )
+        return {"noise": noise / scale}
+    if snr_db is None:
+        return {}
+    power = float(np.mean(np.abs(np.asarray(signal)) ** 2))
+    ratio = 10 ** (-snr_db / 10)
+    return {"noise": float(np.sqrt(power * ratio / (1 + ratio)))}
 
 
 def _operator_on(on: Support | None, radar: Radar, viewpoints: Viewpoints, points: np.ndarray):

@@ -130,10 +130,25 @@ class Patience:
     """The stopping rule of every solver: stop once ``iterations`` in a row have not lowered
     the measure (a least-squares residual, RIFT's loss) below ``1 - min_improvement`` times
     its value at the last iteration that did: progress is measured from there, so that small
-    steps cannot keep resetting the bar."""
+    steps cannot keep resetting the bar.
+
+    ``floor``: the measure's value at a perfect fit, where the noise is known (its share of
+    a complex-MSE loss). Progress is then measured on the part above it: on data that are
+    mostly noise the loss can fall only a little, and steps small beside the noise but
+    large beside what can be explained must not read as converged (RIFT(N) at −10 dB
+    stopped at epoch 18 with its loss 0.999, and reached m-SSIM 0.39 when trained on:
+    docs/rift.md, "Noise"). At or below the floor nothing counts as progress: further
+    descent only fits the noise."""
 
     iterations: int
     min_improvement: float
+    floor: float = 0.0
+
+    def progressed(self, measure: float, reference: float) -> bool:
+        """Whether ``measure`` is progress on ``reference``, the last one that was."""
+        return max(measure - self.floor, 0.0) < (1 - self.min_improvement) * (
+            reference - self.floor
+        )
 
     @classmethod
     def from_tol(cls, tol: float) -> Patience | None:
@@ -263,7 +278,7 @@ def iterate(
             measure = record.residual if record.measure is None else record.measure
             if record.fresh:
                 best_measure, reference, improved = math.inf, math.inf, k - 1
-            if measure < (1 - (until.min_improvement if until else 0)) * reference:
+            if until.progressed(measure, reference) if until else measure < reference:
                 reference, improved = measure, k
             if measure < best_measure:
                 best = image(carry) if record.at is None else record.at

@@ -53,7 +53,7 @@ class Method:
 # its last epochs'), and every grid method takes it
 _LEAST_SQUARES = frozenset({"iterations", "tol", "x0", "train_granularity"})
 _RIFT = frozenset(
-    {"model", "recipe", "width", "depth", "init", "fine_epochs", "train_granularity"}
+    {"model", "recipe", "width", "depth", "init", "fine_epochs", "train_granularity", "noise"}
     | {field.name for field in dataclasses.fields(Recipe)}  # each overrides the recipe's
 )
 

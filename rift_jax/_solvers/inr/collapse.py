@@ -34,6 +34,7 @@ def diagnose(
     *,
     warm: bool = False,
     residual: float | None = None,
+    noise_share: float = 0.0,
 ) -> str | None:
     """Why a RIFT run collapsed, or None: the checks `rift` makes after training.
 
@@ -55,6 +56,10 @@ def diagnose(
       collapse. Other losses are not judged by it: under the two-grid protocol the robust loss's
       good fits leave the gain where the residual ends above 1 (1.05 on the weak target at
       the paper's scale, m-SSIM 0.96).
+    - `noise_share`: the noise's share of the data's power, where known: "fits nothing"
+      then means under 1 % of the *signal's* power, the residual's bar rising to
+      √(1 − (1 − 0.995²)(1 − share)) (0.99955 at −10 dB, where a good fit of m-SSIM 0.39
+      left 0.9967 and the noise alone 0.953).
 
     **Returns:** a sentence naming the failure mode, or None.
     """
@@ -63,10 +68,14 @@ def diagnose(
         return f"gain drifted to zero: |g| fell to {gain_ratio:.2g} of its start"
     if not energy_ratio >= _ZERO_ENERGY:
         return f"zero field: its signals carry {100 * energy_ratio:.2g} % of the data's norm"
-    if residual is not None and not residual < _FITS_NOTHING:
+    bar = _FITS_NOTHING
+    if noise_share:
+        bar = float(np.sqrt(1 - (1 - _FITS_NOTHING**2) * (1 - noise_share)))
+    if residual is not None and not residual < bar:
         return (
             f"fits nothing: even at its best gain the residual ‖y − g·Aρ‖/‖y‖ is "
-            f"{residual:.3f} (the zero field's: 1)"
+            f"{residual:.{3 if noise_share == 0 else 5}f} (the zero field's: 1"
+            + (f"; the bar on data {noise_share:.0%} noise: {bar:.5f})" if noise_share else ")")
         )
     mean = magnitude.mean()
     if mean > 0 and magnitude.std() < _CONSTANT * mean:
@@ -100,8 +109,9 @@ def _measures(prediction, signal):
 
 
 def check_collapse(
-    solution: Solution, fn: GRT, signal, *, warm: bool, least_squares: bool
-) -> str | None:
+    solution: Solution, fn: GRT, signal, *, warm: bool, least_squares: bool,
+    noise_share: float = 0.0,
+) -> str | None:  # fmt: skip
     """`diagnose` for a trained run, read on the viewpoints it trained on (not those it
     held out): every one up to `DIAGNOSTIC_VIEWS`, else `_COLLAPSE_VIEWS` evenly spread
     ones. The best-gain residual only where ``least_squares`` (the run trained with complex
@@ -124,4 +134,7 @@ def check_collapse(
         residual = float(np.sqrt(1.0 - coherence**2))
     gain_ratio = float(abs(solution.field.gain)) / solution.stats["initial_gain"]
     rho = np.asarray(solution.rho)[fn.live_points()]  # padding must not move mean or spread
-    return diagnose(solution.history.loss, rho, energy, gain_ratio, warm=warm, residual=residual)
+    return diagnose(
+        solution.history.loss, rho, energy, gain_ratio, warm=warm, residual=residual,
+        noise_share=noise_share,
+    )  # fmt: skip

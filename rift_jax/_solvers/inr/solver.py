@@ -34,6 +34,7 @@ def rift(
     seed: int = 0,
     progress: bool = True,
     monitor: Monitor | None = None,
+    noise: float | None = None,
     **overrides,
 ) -> Solution:
     """Train an INR so that the GRT of its rendering on the operator's grid fits ``signal``.
@@ -67,6 +68,13 @@ def rift(
       best `Field` so far (as `kaczmarz`'s; its time is not counted; True ends the run,
       which is then neither checked for collapse nor retried). The seconds run on over a
       collapse's retries, whose epochs count from 1 again.
+    - `noise`: the standard deviation of the data's complex noise per sample, if known
+      (`fit` passes it from ``snr_db`` or a `RadarData`'s SNR), in the units of `signal`.
+      It tells the loss that noise leaves from progress: `patience` then measures the
+      loss's progress above the noise's share of the data's power (``stats["noise_share"]``;
+      for complex MSE, or a `holdout`'s residual), and "fits nothing" below asks for 1 % of
+      the signal's power instead of the data's. Without it, on data that are mostly noise
+      (−10 dB), a run stops within ~20 epochs with nothing fitted (docs/rift.md, "Noise").
     - `**overrides`: any `Recipe` field, replacing the recipe's value (e.g. ``epochs=50``).
 
     **Returns:** a `Solution` whose `field` is the trained `Field` of the epoch with the
@@ -84,7 +92,8 @@ def rift(
     non-finite value (`diagnose`): a global gain that drifted to zero, a field whose signals
     carry almost none of the data's energy, a field trained with complex MSE that explains
     under 1 % of the data's power on its training views even at its best complex gain
-    (residual ≥ 0.995; not for coarse to fine), a near-constant field, or a
+    (residual ≥ 0.995; of the signal's power where `noise` is known; not for coarse to
+    fine), a near-constant field, or a
     loss that never fell from its first epoch (not checked for an `init` warm start, which
     may begin converged). A collapsed run is retried up to the recipe's `retries` times,
     each from a fresh initialisation (seed + 1000·k; an `init` field is kept) at half the
@@ -99,6 +108,11 @@ def rift(
     name = model if isinstance(model, str) else type(model).__name__
     where = f"rift ({name})"
     recipe = resolve(where, recipe, overrides)
+    if noise is not None and not (
+        isinstance(noise, int | float | np.floating) and not isinstance(noise, bool)
+        and np.isfinite(noise) and noise >= 0
+    ):  # fmt: skip
+        raise ValueError(f"{where}: `noise` must be a finite number ≥ 0 or None, got {noise!r}.")
     warm = None
     if isinstance(init, str):
         if init not in WARM_STARTS:
@@ -116,7 +130,7 @@ def rift(
     one_run = functools.partial(
         train, operator, signal, where=where, name=name, model=model, width=width,
         depth=depth, init=init, warm=warm, extent=extent, fine_points=fine_points,
-        fine_epochs=fine_epochs, progress=progress,
+        fine_epochs=fine_epochs, progress=progress, noise=noise,
     )  # fmt: skip
     spent = [0.0]  # the seconds of the attempts so far: a monitor sees one clock over all
 
@@ -142,8 +156,9 @@ def rift(
         started = init is not None or warm is not None
         least_squares = recipe.loss_fn is complex_mse
         why = check_collapse(
-            solution, operator.fn, signal, warm=started, least_squares=least_squares
-        )
+            solution, operator.fn, signal, warm=started, least_squares=least_squares,
+            noise_share=solution.stats["noise_share"],
+        )  # fmt: skip
         return solution, why
 
     attempts, remedies = [checked(solution)], []  # (solution, why it collapsed or None)

@@ -21,6 +21,7 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from ..._geometry import spread
+from ..._losses import complex_mse
 from ..._models import MODELS, AbstractINR, Field
 from ..._operator import GRT, GRTOperator
 from ..._precision import exact_jit, split, to_float64
@@ -67,6 +68,7 @@ def train(
     seed: int,
     progress: bool,
     monitor: Monitor | None,
+    noise: float | None = None,
 ) -> Solution:
     """One training run of `rift` (no collapse check): see there."""
     signal, _ = check_problem(where, operator, signal, None, recipe.epochs)
@@ -238,6 +240,7 @@ def train(
             "active_points": int(trained.sum()),
             "step_sizes": sorted(step_sizes),  # padded point counts trained (one program each)
             "initial_gain": initial_gain,
+            "noise_share": share,  # of the trained views' power (0: noise-free or unknown)
         }
         if len(held):
             stats |= {"holdout_views": held.tolist(), "holdout_residual": holdout_residuals}
@@ -251,9 +254,13 @@ def train(
         rho = fn.masked(rho)  # ρ = 0 on an operator's padding, as on any other solver's
         return Solution(rho, run.history, run.stopped, stats, field=best)
 
+    share = noise_share(noise, energy[trained_views], measurements)
     patience = None
     if recipe.patience is not None:
-        patience = Patience(recipe.patience, recipe.min_improvement)
+        # what a perfect fit leaves of the measure: a held-out residual keeps its noise's
+        # norm, complex MSE its power; another loss's floor is not known
+        floor = math.sqrt(share) if len(held) else share if recipe.loss_fn is complex_mse else 0
+        patience = Patience(recipe.patience, recipe.min_improvement, floor)
     run = iterate(
         one_epoch,
         start,
@@ -343,6 +350,16 @@ def batch_order(rng: np.random.Generator, n: int, size: int, passes: int = 1) ->
     order = np.concatenate([rng.permutation(n) for _ in range(passes)])
     steps = n_steps(passes * n, size)
     return np.concatenate([order, order[: steps * size - passes * n]]).reshape(steps, size)
+
+
+def noise_share(noise: float | None, energy: np.ndarray, measurements: int) -> float:
+    """The share of the data's power that is noise of standard deviation ``noise`` per
+    sample (None: unknown, 0), from the views' ``energy`` of ``measurements`` samples each;
+    at most 1."""
+    if not noise:
+        return 0.0
+    power = float(np.sum(energy)) / (len(energy) * measurements)
+    return min(noise**2 / power, 1.0) if power > 0 else 0.0
 
 
 def _energy_gain(field: Field, fn: GRT, coords, signal) -> Float[Array, ""]:
