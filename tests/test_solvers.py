@@ -141,6 +141,30 @@ def test_one_loop_one_stopping_rule():
     assert len(extended.history) == 8 and extended.best == 7  # 0.1, in the extension
 
 
+def test_patience_measures_progress_above_the_noise_floor():
+    """With a ``floor`` (what a perfect fit leaves: the noise's share of a loss), progress
+    is counted on the part above it. Steps of 0.1 % of the loss are ~1.1 % of what lies
+    above a floor of 0.909 (data at -10 dB): they go on, where without the floor they
+    stop. At or below the floor nothing counts: descent there only fits the noise."""
+
+    def run(values, until):
+        def step(k):
+            return k + 1, values[k]
+
+        return iterate(step, 0, iterations=len(values), progress=False, desc="t",
+                       image=lambda k: k, until=until)  # fmt: skip
+
+    noisy = [1.0 - 0.001 * k for k in range(12)]
+    assert run(noisy, Patience(3, 0.01)).stopped.at == 4  # progress only at the first
+    budget = rj.solvers.Outcome.BUDGET
+    assert run(noisy, Patience(3, 0.01, floor=0.909)).stopped.outcome is budget
+    into_the_noise = [1.0, 0.8, 0.6, 0.5, 0.45, 0.4, 0.3, 0.2]
+    stopped = run(into_the_noise, Patience(2, 0.01, floor=0.5)).stopped
+    # reaching the floor is the last progress (iteration 4); two more end the run
+    assert stopped == rj.solvers.Stop(rj.solvers.Outcome.CONVERGED, 6)
+    assert Patience(2, 0.01).progressed(0.4, 0.5) and not Patience(2, 0.01).progressed(0.5, 0.5)
+
+
 def test_tolerance_stops_early(problem):
     operator, signal, _ = problem
     solution = solvers.lsmr(

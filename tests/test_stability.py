@@ -116,6 +116,12 @@ def test_diagnose_names_each_failure_mode():
     assert rj.solvers.diagnose(**healthy | dict(energy_ratio=np.nan)).startswith("zero field")
     assert rj.solvers.diagnose(**healthy, residual=0.9949) is None
     assert rj.solvers.diagnose(**healthy, residual=0.995).startswith("fits nothing")
+    # on data 10/11 noise (-10 dB), the bar is 1 % of the signal's power: √(1 − 0.01/11)
+    share = 10 / 11
+    assert rj.solvers.diagnose(**healthy, residual=0.9967, noise_share=share) is None
+    assert rj.solvers.diagnose(**healthy, residual=0.9996, noise_share=share).startswith(
+        "fits nothing"
+    )
 
 
 # on `tiny`: one pass over its 30 views per epoch (3 steps), the budget the values quoted
@@ -147,6 +153,24 @@ def test_a_zero_field_is_retried_from_a_fresh_start(tiny, monkeypatch):
     monkeypatch.setattr(training, "initial_field", original)
     direct = rj.fit(scene, train, gain=False, seed=1003, learning_rate=5e-3, radar=radar, **TINY)
     np.testing.assert_array_equal(result.scene.reflectivity, direct.scene.reflectivity)
+
+
+@pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # six epochs: RIFT fits little
+@pytest.mark.filterwarnings("ignore::rift_jax.solvers.CollapseWarning")
+def test_fit_tells_rift_the_noise_it_knows(tiny):
+    """`fit` passes RIFT the noise's σ per sample (`rift`'s `noise`): from ``snr_db``, its
+    share of the trained views' power is the SNR's, 1/(1 + 10^(SNR/10)) up to the draw;
+    from ``noise=`` in the signal's units, σ²/mean|y|² whatever the signal's scale;
+    unknown, 0 (as before it was known)."""
+    radar, scene, train, _ = tiny
+    options = dict(radar=radar, retries=0, **TINY)
+    noisy = rj.fit(scene, train, snr_db=-10.0, seed=1, **options)
+    assert noisy.stats["noise_share"] == pytest.approx(10 / 11, rel=0.02)
+    signal = 1e3 * np.asarray(rj.synthesize(scene, train, radar).signal)
+    sigma = 0.3 * np.sqrt(np.mean(np.abs(signal) ** 2))
+    given = rj.fit(signal, train, extent=1.0, noise=sigma, **options)
+    assert given.stats["noise_share"] == pytest.approx(0.09, rel=1e-4)
+    assert rj.fit(signal, train, extent=1.0, **options).stats["noise_share"] == 0
 
 
 def test_gain_drift_is_detected_and_a_lasting_collapse_warns(tiny):
