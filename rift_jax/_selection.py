@@ -26,6 +26,7 @@ from ._fit import (
     FitResult,
     FitWarning,
     _data,
+    _noise,
     check_options,
     check_train_granularity,
     fit,
@@ -36,6 +37,7 @@ from ._scenes import GridWarning, Scene
 from ._solvers import CollapseWarning, Diverged, Outcome
 from ._solvers.methods import METHODS
 from ._support import estimate_support
+from ._synthesis import RadarData
 
 CANDIDATES = ("fista", "rift-n")
 """``"auto"``'s candidates, the two methods that were best in some cells of the stress grid
@@ -141,6 +143,10 @@ def _choose(
         data, viewpoints, radar, extent, granularity, snr_db, seed
     )
     signal = np.asarray(signal) * scale  # in the input's units, as a given `init` field is
+    # the candidates fit arrays, which say no noise level: the one `fit` would know is
+    # passed to those that use it (RIFT), as `noise` in these units
+    known = data.snr_db if isinstance(data, RadarData) else snr_db
+    noise = _noise({}, signal, 1.0, known)
     for own in candidates.values():
         check_train_granularity(own, granularity)
     grid = Scene.empty(extent, granularity)
@@ -159,9 +165,12 @@ def _choose(
         held = spread(n, k)
         kept = np.setdiff1d(np.arange(n), held)
         for method in candidates:
+            options = candidates[method]
+            if "noise" in METHODS[method].options:
+                options = noise | options
             scores[method] = _score(
-                method, candidates[method], signal, viewpoints, kept, held, grid, support,
-                radar, seed, progress,
+                method, options, signal, viewpoints, kept, held, grid, support, radar, seed,
+                progress,
             )  # fmt: skip
         # the lower held-out residual first (the first listed on a tie), after every
         # candidate that collapsed or diverged
@@ -264,7 +273,7 @@ def _score(method, options, signal, viewpoints, kept, held, grid, support, radar
     held-out residual, seconds, stop, failure (RIFT's collapse, a divergence, or None) and
     the messages of the warnings that it likely failed (recorded, not raised: the final fit
     raises its own; given an array, the fit knows no noise level, so their judgement
-    assumes none)."""
+    assumes none; RIFT's own stopping and collapse check get it as `noise`)."""
     start = time.perf_counter()
 
     def run():

@@ -529,6 +529,34 @@ def test_auto_on_noisy_data_is_the_chosen_methods_own_fit(small_cube):
     assert result.residual == direct.residual
 
 
+def test_auto_tells_its_candidates_the_noise_fit_would_know(small_cube, monkeypatch):
+    """The candidates fit arrays (four fifths of the views), which say no noise level: a
+    method that uses one (RIFT) gets the σ that ``snr_db`` implies, in the signal's units,
+    as `noise`; a method that does not is given none, and a candidate's own `noise` wins."""
+    from rift_jax import _selection
+
+    radar, scene, train, _ = small_cube
+    given = []
+
+    def scored(method, options, *args):  # a tie: the first candidate, LSMR, is fitted
+        given.append((method, dict(options)))
+        return dict(holdout_residual=0.5, seconds=0.0, stopped="budget", failure=None,
+                    warnings=[])  # fmt: skip
+
+    monkeypatch.setattr(_selection, "_score", scored)
+    candidates = {"lsmr": AUTO_CANDIDATES["lsmr"], "rift-n": {"epochs": 1}}
+    noisy = dict(radar=radar, snr_db=0.0, seed=3, progress=False)
+    assert rj.fit(scene, train, candidates=candidates, **noisy).method == "lsmr"
+    data = rj.synthesize(scene, train, radar, snr_db=0.0, seed=3)
+    power = np.mean(np.abs(np.asarray(data.signal) * data.scale) ** 2)
+    assert given[0] == ("lsmr", AUTO_CANDIDATES["lsmr"])
+    assert given[1][0] == "rift-n" and given[1][1]["epochs"] == 1
+    assert given[1][1]["noise"] == pytest.approx(np.sqrt(power / 2), rel=1e-5)  # 0 dB
+    given.clear()
+    rj.fit(scene, train, candidates={"lsmr": {}, "rift-n": {"noise": 0.0}}, **noisy)
+    assert given[1] == ("rift-n", {"noise": 0.0})
+
+
 def test_auto_refuses_what_it_cannot_honour(small_cube):
     radar, scene, train, _ = small_cube
     auto = dict(radar=radar, method="auto")
