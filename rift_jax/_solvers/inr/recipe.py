@@ -44,7 +44,9 @@ class Recipe:
       `epochs` is a budget: "until converged, at most N"; None: run every epoch, as the
       paper). The run then ends with ``Outcome.CONVERGED``, as the least-squares solvers
       do, and keeps the best parameters. At the paper's scale the loss is flat after ~20 of
-      100 epochs, so a `patience` of 10 can save most of a run.
+      100 epochs, so a `patience` of 10 can save most of a run. Where `rift` is told the
+      data's `noise`, progress is measured on the loss above the noise's share
+      (`Patience`'s ``floor``).
     - `min_improvement`: see `patience`.
     - `prune`: train only an *active set* of the operator's points: those where |ρ| is at
       least ``prune`` times its largest value, and their neighbours (within √3 point
