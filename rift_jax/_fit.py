@@ -8,6 +8,7 @@ predict unseen viewpoints and score itself with the paper's metrics.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 import warnings
 from collections.abc import Callable
@@ -36,7 +37,13 @@ from ._support import (
     voxels_holding,
 )
 from ._synthesis import PointScatterers, RadarData, synthesize
-from ._validation import check_finite, check_instance, check_nonnegative_int, check_positive
+from ._validation import (
+    _is_number,
+    check_finite,
+    check_instance,
+    check_nonnegative_int,
+    check_positive,
+)
 
 AUTO = "auto"  # not a solver: a choice between them (`rift_jax._selection`)
 DEFAULT_METHOD = AUTO
@@ -337,8 +344,12 @@ def fit(
             time_limit, progress, options,
         )  # fmt: skip
     start = time.perf_counter()  # the support check counts in the reconstruction's time
-    # the residual a perfect fit leaves on data of a known SNR: ‖n‖/‖s + n‖
-    noise_floor = 0.0 if snr_db is None else 1 / np.sqrt(1 + 10 ** (snr_db / 10))
+    noise = _noise(options, signal, scale, snr_db)  # σ per sample, where known
+    # the residual a perfect fit leaves on data whose noise is known: ‖n‖/‖s + n‖
+    noise_floor = 0.0
+    if noise.get("noise"):
+        power = float(np.mean(np.abs(np.asarray(signal)) ** 2))
+        noise_floor = float(np.sqrt(min(noise["noise"] ** 2 / power, 1.0)))
     points = grid.points()
     operator = grt_operator(radar, viewpoints, points)
     support_stats = {}  # where a support's own cost goes: the estimate, the leak check
@@ -357,9 +368,9 @@ def fit(
         options = {"seed": seed, **options}
     solver_options = options
     if "noise" in chosen.options:  # RIFT: what of its loss is noise (`rift`'s `noise`)
-        solver_options = options | _noise(options, signal, scale, snr_db)
+        solver_options = options | noise
     if isinstance(options.get("init"), Field):  # a result's field is in the scene's units
-        solver_options = {**options, "init": options["init"].scaled(1 / scale)}
+        solver_options = {**solver_options, "init": options["init"].scaled(1 / scale)}
     if chosen.inr:  # the grid's coordinate scale, with or without a support
         solver_options = {"extent": float(np.max(np.abs(points))), **solver_options}
     # where the solver's unknowns live: the inverse grid's points (on the support, if any),
@@ -488,6 +499,14 @@ def check_options(method: str, options: dict) -> None:
     """A ValueError for an option ``method`` does not take, a non-finite one, or a start
     that cannot go with ``train_granularity``: what `fit` checks before any work."""
     METHODS[method].check(method, options)
+    if (noise := options.get("noise")) is not None and not (
+        _is_number(noise) and math.isfinite(noise) and noise >= 0
+    ):
+        raise ValueError(
+            "fit: `noise` must be a finite number ≥ 0 (the noise's standard deviation per "
+            "sample, in the units of the signal given, or of a RadarData's `signal * scale`) "
+            f"or None, got {noise!r}."
+        )
     for name, value in options.items():  # e.g. tol=nan: no comparison with it ever stops
         if isinstance(value, float | np.floating) and not np.isfinite(value):
             raise ValueError(f"fit: option `{name}` must be finite, got {value!r}.")
@@ -553,18 +572,13 @@ def _fit_scatterers(
 
 
 def _noise(options: dict, signal, scale: float, snr_db: float | None) -> dict:
-    """``{"noise": σ}`` for a method that takes the noise's standard deviation per sample
-    (`points`, RIFT), in the solver's units (the signal normalised by ``scale``): the
-    user's ``noise`` (in the signal's units), else the σ that ``snr_db`` implies, as
-    `synthesize` adds it; ``{}`` when neither is known."""
+    """``{"noise": σ}``, the noise's standard deviation per sample in the solver's units
+    (the signal normalised by ``scale``), for the methods that take it (`points`, RIFT)
+    and `fit`'s own checks: the user's ``noise`` (checked by `check_options`, in the
+    signal's units), else the σ that ``snr_db`` implies, as `synthesize` adds it; ``{}``
+    when neither is known."""
     if (noise := options.get("noise")) is not None:
-        finite = isinstance(noise, int | float | np.floating) and not isinstance(noise, bool)
-        if not (finite and np.isfinite(noise) and noise >= 0):
-            raise ValueError(
-                "fit: `noise` must be a finite number ≥ 0 (the noise's standard deviation "
-                f"per sample, in the signal's units) or None, got {noise!r}."
-            )
-        return {"noise": noise / scale}
+        return {"noise": float(noise) / scale}
     if snr_db is None:
         return {}
     power = float(np.mean(np.abs(np.asarray(signal)) ** 2))

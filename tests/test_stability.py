@@ -157,20 +157,40 @@ def test_a_zero_field_is_retried_from_a_fresh_start(tiny, monkeypatch):
 
 @pytest.mark.filterwarnings("ignore::rift_jax.FitWarning")  # six epochs: RIFT fits little
 @pytest.mark.filterwarnings("ignore::rift_jax.solvers.CollapseWarning")
-def test_fit_tells_rift_the_noise_it_knows(tiny):
-    """`fit` passes RIFT the noise's σ per sample (`rift`'s `noise`): from ``snr_db``, its
-    share of the trained views' power is the SNR's, 1/(1 + 10^(SNR/10)) up to the draw;
-    from ``noise=`` in the signal's units, σ²/mean|y|² whatever the signal's scale;
-    unknown, 0 (as before it was known)."""
+def test_fit_tells_rift_the_noise_it_knows(tiny, monkeypatch):
+    """`fit` passes RIFT the noise's σ per sample (`rift`'s `noise`), and its stopping rule
+    measures progress above the noise's share: from ``snr_db`` the share of the trained
+    views' power is the SNR's, 1/(1 + 10^(SNR/10)) up to the draw, also for a warm start
+    from a result's field; a `holdout`'s residual gets √share; from ``noise=`` in the
+    signal's units, σ²/mean|y|² whatever the signal's scale; unknown, 0 (as before); a
+    `noise` of all the data's power or more is not believed."""
+    from rift_jax._solvers.inr import training
+
+    floors, iterate = [], training.iterate
+
+    def watched(*args, until, **kwargs):  # the stopping rule each training run gets
+        floors.append(until.floor)
+        return iterate(*args, until=until, **kwargs)
+
+    monkeypatch.setattr(training, "iterate", watched)
     radar, scene, train, _ = tiny
     options = dict(radar=radar, retries=0, **TINY)
     noisy = rj.fit(scene, train, snr_db=-10.0, seed=1, **options)
-    assert noisy.stats["noise_share"] == pytest.approx(10 / 11, rel=0.02)
+    share = noisy.stats["noise_share"]
+    assert share == pytest.approx(10 / 11, rel=0.02) and floors[-1] == share
+    warm = rj.fit(scene, train, snr_db=-10.0, seed=1, init=noisy.field, **options)
+    assert warm.stats["noise_share"] == share and floors[-1] == share
+    rj.fit(scene, train, snr_db=-10.0, seed=1, holdout=6, **options)
+    assert floors[-1] == pytest.approx(np.sqrt(10 / 11), rel=0.02)
     signal = 1e3 * np.asarray(rj.synthesize(scene, train, radar).signal)
     sigma = 0.3 * np.sqrt(np.mean(np.abs(signal) ** 2))
     given = rj.fit(signal, train, extent=1.0, noise=sigma, **options)
     assert given.stats["noise_share"] == pytest.approx(0.09, rel=1e-4)
+    assert floors[-1] == given.stats["noise_share"]
     assert rj.fit(signal, train, extent=1.0, **options).stats["noise_share"] == 0
+    with pytest.warns(UserWarning, match="holds all of the data's power"):
+        loud = rj.fit(signal, train, extent=1.0, noise=4 * sigma, **options)
+    assert loud.stats["noise_share"] == 0 and floors[-1] == 0
 
 
 def test_gain_drift_is_detected_and_a_lasting_collapse_warns(tiny):

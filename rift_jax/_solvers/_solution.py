@@ -137,8 +137,8 @@ class Patience:
     mostly noise the loss can fall only a little, and steps small beside the noise but
     large beside what can be explained must not read as converged (RIFT(N) at −10 dB
     stopped at epoch 18 with its loss 0.999, and reached m-SSIM 0.39 when trained on:
-    docs/rift.md, "Noise"). At or below the floor nothing counts as progress: further
-    descent only fits the noise."""
+    docs/rift.md, "Noise"). The first iteration that reaches the floor counts; after it,
+    nothing does: further descent only fits the noise."""
 
     iterations: int
     min_improvement: float

@@ -56,10 +56,11 @@ def diagnose(
       collapse. Other losses are not judged by it: under the two-grid protocol the robust loss's
       good fits leave the gain where the residual ends above 1 (1.05 on the weak target at
       the paper's scale, m-SSIM 0.96).
-    - `noise_share`: the noise's share of the data's power, where known: "fits nothing"
-      then means under 1 % of the *signal's* power, the residual's bar rising to
-      √(1 − (1 − 0.995²)(1 − share)) (0.99955 at −10 dB, where a good fit of m-SSIM 0.39
-      left 0.9967 and the noise alone 0.953).
+    - `noise_share`: the noise's share of the data's power, where known (complex MSE):
+      "fits nothing" then means under 1 % of the *signal's* power, the residual's bar
+      rising to √(1 − (1 − 0.995²)(1 − share)) (0.99955 at −10 dB, where a good fit of
+      m-SSIM 0.39 left 0.9967 and the noise alone 0.953), and "loss flat from the start"
+      compares the losses above the share.
 
     **Returns:** a sentence naming the failure mode, or None.
     """
@@ -81,7 +82,11 @@ def diagnose(
     if mean > 0 and magnitude.std() < _CONSTANT * mean:
         return f"near-constant field: std|ρ| is {magnitude.std() / mean:.1%} of mean|ρ|"
     losses = np.asarray(losses)
-    if not warm and len(losses) >= 3 and losses.min() > _FLAT * losses[0]:
+    if (
+        not warm
+        and len(losses) >= 3
+        and losses.min() - noise_share > _FLAT * (losses[0] - noise_share)
+    ):
         return (
             f"loss flat from the start: best {losses.min():.4g} against the first epoch's "
             f"{losses[0]:.4g}"
@@ -132,6 +137,8 @@ def check_collapse(
     residual = None
     if least_squares and "fine_from_epoch" not in solution.stats:
         residual = float(np.sqrt(1.0 - coherence**2))
+    if not least_squares:  # the share is complex MSE's floor; another loss's is not known
+        noise_share = 0.0
     gain_ratio = float(abs(solution.field.gain)) / solution.stats["initial_gain"]
     rho = np.asarray(solution.rho)[fn.live_points()]  # padding must not move mean or spread
     return diagnose(

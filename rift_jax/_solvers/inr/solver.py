@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import warnings
 
 import numpy as np
@@ -12,6 +13,8 @@ from jaxtyping import Array, Complex, Float
 from ..._losses import complex_mse
 from ..._models import AbstractINR, Field
 from ..._operator import GRTOperator
+from ..._validation import _is_number
+from .._common import check_problem
 from .._solution import Monitor, Outcome, Solution
 from .collapse import CollapseWarning, check_collapse
 from .recipe import Recipe, resolve
@@ -74,7 +77,9 @@ def rift(
       loss's progress above the noise's share of the data's power (``stats["noise_share"]``;
       for complex MSE, or a `holdout`'s residual), and "fits nothing" below asks for 1 % of
       the signal's power instead of the data's. Without it, on data that are mostly noise
-      (−10 dB), a run stops within ~20 epochs with nothing fitted (docs/rift.md, "Noise").
+      (−10 dB), runs stopped after 18-36 epochs with nothing fitted (docs/rift.md,
+      "Noise"). A `noise` that holds all of the data's power or more is not believed: a
+      warning says so, and training ignores it.
     - `**overrides`: any `Recipe` field, replacing the recipe's value (e.g. ``epochs=50``).
 
     **Returns:** a `Solution` whose `field` is the trained `Field` of the epoch with the
@@ -108,11 +113,22 @@ def rift(
     name = model if isinstance(model, str) else type(model).__name__
     where = f"rift ({name})"
     recipe = resolve(where, recipe, overrides)
-    if noise is not None and not (
-        isinstance(noise, int | float | np.floating) and not isinstance(noise, bool)
-        and np.isfinite(noise) and noise >= 0
-    ):  # fmt: skip
-        raise ValueError(f"{where}: `noise` must be a finite number ≥ 0 or None, got {noise!r}.")
+    if noise is not None:
+        if not (_is_number(noise) and math.isfinite(noise) and noise >= 0):
+            raise ValueError(
+                f"{where}: `noise` must be a finite number ≥ 0 or None, got {noise!r}."
+            )
+        checked, _ = check_problem(where, operator, signal, None, recipe.epochs)
+        power = float(np.mean(np.abs(np.asarray(checked)) ** 2))
+        if noise**2 >= power > 0:  # noise that is all of the data: not to be believed
+            warnings.warn(
+                f"{where}: `noise` ({noise:.3g} per sample) holds all of the data's power "
+                f"({power:.3g} per sample) or more; training ignores it. Does the SNR or noise "
+                "level given overstate the noise?",
+                UserWarning,
+                stacklevel=2,
+            )
+            noise = None
     warm = None
     if isinstance(init, str):
         if init not in WARM_STARTS:

@@ -257,9 +257,11 @@ def train(
     share = noise_share(noise, energy[trained_views], measurements)
     patience = None
     if recipe.patience is not None:
-        # what a perfect fit leaves of the measure: a held-out residual keeps its noise's
-        # norm, complex MSE its power; another loss's floor is not known
-        floor = math.sqrt(share) if len(held) else share if recipe.loss_fn is complex_mse else 0
+        # what a fit of the signal alone leaves of the measure: of a held-out residual, its
+        # views' noise's norm; of complex MSE, the noise's power; another loss's: not known
+        floor = share if recipe.loss_fn is complex_mse else 0.0
+        if len(held):
+            floor = math.sqrt(noise_share(noise, energy[held], measurements))
         patience = Patience(recipe.patience, recipe.min_improvement, floor)
     run = iterate(
         one_epoch,
