@@ -8,7 +8,6 @@ predict unseen viewpoints and score itself with the paper's metrics.
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 import warnings
 from collections.abc import Callable
@@ -38,11 +37,11 @@ from ._support import (
 )
 from ._synthesis import PointScatterers, RadarData, synthesize
 from ._validation import (
-    _is_number,
     check_finite,
     check_instance,
     check_nonnegative_int,
     check_positive,
+    is_finite_nonnegative,
 )
 
 AUTO = "auto"  # not a solver: a choice between them (`rift_jax._selection`)
@@ -331,13 +330,12 @@ def fit(
         )  # fmt: skip
     chosen = METHODS[method]
     check_options(method, options)
-    signal, scale, radar, extent, granularity = _data(
+    # snr_db becomes the data's own: measured data (a RadarData) say their noise
+    signal, scale, radar, extent, granularity, snr_db = _data(
         scene_or_signal, viewpoints, radar, extent, granularity, snr_db, seed
     )
     grid = Scene.empty(extent, granularity)
     check_train_granularity(options, granularity)  # before a support estimate's cost
-    if isinstance(scene_or_signal, RadarData):  # measured data that say their noise
-        snr_db = scene_or_signal.snr_db
     if chosen.scatterers:
         return _fit_scatterers(
             method, signal, scale, viewpoints, radar, grid, snr_db, support, monitor,
@@ -499,9 +497,7 @@ def check_options(method: str, options: dict) -> None:
     """A ValueError for an option ``method`` does not take, a non-finite one, or a start
     that cannot go with ``train_granularity``: what `fit` checks before any work."""
     METHODS[method].check(method, options)
-    if (noise := options.get("noise")) is not None and not (
-        _is_number(noise) and math.isfinite(noise) and noise >= 0
-    ):
+    if (noise := options.get("noise")) is not None and not is_finite_nonnegative(noise):
         raise ValueError(
             "fit: `noise` must be a finite number ≥ 0 (the noise's standard deviation per "
             "sample, in the units of the signal given, or of a RadarData's `signal * scale`) "
@@ -758,7 +754,9 @@ def _warn_unless_nested(data: Scene, granularity: float) -> None:
 
 
 def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):
-    """(normalised signal, its scale, radar, extent, granularity) for `fit`'s input."""
+    """(normalised signal, its scale, radar, extent, granularity, the noise's SNR in dB
+    where known: ``snr_db`` for a Scene, a `RadarData`'s own, None for an array) for
+    `fit`'s input."""
     if radar is not None:
         check_instance("fit: `radar`", radar, Radar, "a rift_jax.Radar")
     if isinstance(data, Scene | PointScatterers):
@@ -776,7 +774,7 @@ def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):
         data_ = synthesize(data, viewpoints, radar, snr_db=snr_db, seed=seed)
         if isinstance(data, Scene):  # point scatterers share no grid with any
             _warn_unless_nested(data, granularity)
-        return data_.signal, data_.scale, data_.radar, data.extent, granularity
+        return data_.signal, data_.scale, data_.radar, data.extent, granularity, snr_db
     if snr_db is not None:
         raise ValueError("fit: `snr_db` applies to a Scene; measured signals carry their noise.")
     if extent is None or granularity is None:
@@ -794,7 +792,7 @@ def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):
                 f"has {len(viewpoints)}."
             )
         _warn_if_phaseless(data.signal)
-        return data.signal, data.scale, data.radar, extent, granularity
+        return data.signal, data.scale, data.radar, extent, granularity, data.snr_db
     radar = Radar() if radar is None else radar
     signal = np.asarray(data)
     if not np.issubdtype(signal.dtype, np.number):
@@ -812,4 +810,4 @@ def _data(data, viewpoints, radar, extent, granularity, snr_db, seed):
     peak = float(np.max(np.abs(signal)))
     _warn_if_phaseless(signal)
     scale = peak if peak > 0 else 1.0  # solvers work on O(1) data; ρ is scaled back
-    return signal / scale, scale, radar, extent, granularity
+    return signal / scale, scale, radar, extent, granularity, None

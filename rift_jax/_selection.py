@@ -37,7 +37,6 @@ from ._scenes import GridWarning, Scene
 from ._solvers import CollapseWarning, Diverged, Outcome
 from ._solvers.methods import METHODS
 from ._support import estimate_support
-from ._synthesis import RadarData
 
 CANDIDATES = ("fista", "rift-n")
 """``"auto"``'s candidates, the two methods that were best in some cells of the stress grid
@@ -139,13 +138,12 @@ def _choose(
 ) -> FitResult:
     """`fit_auto`'s work, on checked arguments."""
     given = {"granularity": granularity, "extent": extent, "snr_db": snr_db}
-    signal, scale, radar, extent, granularity = _data(
+    signal, scale, radar, extent, granularity, known = _data(
         data, viewpoints, radar, extent, granularity, snr_db, seed
     )
     signal = np.asarray(signal) * scale  # in the input's units, as a given `init` field is
     # the candidates fit arrays, which say no noise level: the one `fit` would know is
     # passed to those that use it (RIFT), as `noise` in these units
-    known = data.snr_db if isinstance(data, RadarData) else snr_db
     noise = _noise({}, signal, 1.0, known)
     for own in candidates.values():
         check_train_granularity(own, granularity)

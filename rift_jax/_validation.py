@@ -22,6 +22,11 @@ def _is_number(value) -> bool:
     )
 
 
+def is_finite_nonnegative(value) -> bool:
+    """A real number (not a bool), finite and ≥ 0: e.g. a noise level, which may be 0."""
+    return _is_number(value) and math.isfinite(value) and value >= 0
+
+
 def check_positive(name: str, value: float) -> None:
     if not _is_number(value) or not (math.isfinite(value) and value > 0):
         raise ValueError(f"{name} must be a positive finite number, got {value!r}.")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import warnings
 
 import numpy as np
@@ -13,7 +12,7 @@ from jaxtyping import Array, Complex, Float
 from ..._losses import complex_mse
 from ..._models import AbstractINR, Field
 from ..._operator import GRTOperator
-from ..._validation import _is_number
+from ..._validation import is_finite_nonnegative
 from .._common import check_problem
 from .._solution import Monitor, Outcome, Solution
 from .collapse import CollapseWarning, check_collapse
@@ -114,7 +113,7 @@ def rift(
     where = f"rift ({name})"
     recipe = resolve(where, recipe, overrides)
     if noise is not None:
-        if not (_is_number(noise) and math.isfinite(noise) and noise >= 0):
+        if not is_finite_nonnegative(noise):
             raise ValueError(
                 f"{where}: `noise` must be a finite number ≥ 0 or None, got {noise!r}."
             )
