@@ -196,6 +196,8 @@ def test_bad_input(small_cube):
         ({"tol": 1.5}, "tol"),
         ({"floor": -1.0}, "floor"),
         ({"noise": -1.0}, "noise"),
+        ({"noise": float("inf")}, "noise"),
+        ({"noise": True}, "noise"),
         ({"refine_steps": 2.5}, "refine_steps"),
     ]:
         with pytest.raises(ValueError, match=f"`{word}`"):

@@ -57,7 +57,7 @@ from jaxtyping import Array, Complex, Float
 
 from .._geometry import C0, Radar, Viewpoints, every_view_antennas
 from .._synthesis import PointScatterers
-from .._validation import check_positive, check_positive_int
+from .._validation import check_positive, check_positive_int, is_finite_nonnegative
 from ._solution import History, Outcome, Solution, Stop
 
 _CANDIDATES = 3  # cells localised per round: the one whose point removes most energy is kept
@@ -647,8 +647,8 @@ def point_scatterers(
     for name, value in (("tol", tol), ("floor", floor)):
         if not (isinstance(value, int | float) and 0 <= value < 1):
             raise ValueError(f"points: `{name}` must be a number in [0, 1), got {value!r}.")
-    if noise is not None and not (isinstance(noise, int | float | np.floating) and noise >= 0):
-        raise ValueError(f"points: `noise` must be a number ≥ 0 or None, got {noise!r}.")
+    if noise is not None and not is_finite_nonnegative(noise):
+        raise ValueError(f"points: `noise` must be a finite number ≥ 0 or None, got {noise!r}.")
     if not isinstance(refine_steps, int) or refine_steps < 0:
         raise ValueError(f"points: `refine_steps` must be an integer ≥ 0, got {refine_steps!r}.")
     geometry = Geometry.of(radar, viewpoints)
