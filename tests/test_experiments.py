@@ -227,6 +227,19 @@ def test_resume_keeps_runs_from_before_the_experiment_gained_settings(
         resume_with(saved | {"config": saved["config"] | {"retired": 1}})
 
 
+def test_the_experiments_choose_rifts_active_set_as_fit_does():
+    """Every experiment's RIFT that trains an active set chooses it first no sooner than
+    `fit`'s default does (after `recheck_every` epochs on every point): chosen after 2
+    epochs, the weak target's set dropped the weaker bar at 3:1 and 4:1 before the field
+    had learned it (docs/experiments.md)."""
+    default = rj.solvers.Recipe().recheck_every
+    studies = (weak_target, simple_scenes, complex_scenes)
+    budgets = [cfg.budget for study in studies for cfg in study.SCALES.values()]
+    pruned = [b for b in budgets if b.rift_prune is not None]
+    assert weak_target.SCALES["default"].budget in pruned and len(pruned) >= 3
+    assert all(b.rift(500)["recheck_every"] >= default for b in pruned)
+
+
 def test_the_experiments_name_rifts_patience():
     """`fit` stops RIFT once converged (patience 10), prunes (0.05) and estimates a support
     by default; the experiments say what they do (every step, or the paper scale's 10; the
