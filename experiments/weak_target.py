@@ -22,7 +22,7 @@ convention, near Rayleigh's 26.5% for two equal peaks of intensity).
 Scales:
 - quick (seconds; the tests): ±1.44 m at 0.24 / 0.48 m, 20 training views, one sweep, a
   few RIFT steps;
-- default (≤ 10 minutes on 2 CPU cores): the paper's granularity 0.12 / 0.24 m over
+- default (~20 minutes on 2 CPU cores): the paper's granularity 0.12 / 0.24 m over
   ±1.44 m rather than ±3 m (the bars span ±1.32 × ±1.2 × ±0.24 m; 13³ rather than 26³
   unknowns, but also less room for clutter and spill), 500 views each, Kaczmarz 2 sweeps,
   RIFT 750 steps (15 epochs), on an active set from the 11th (`prune=0.05`, chosen as
