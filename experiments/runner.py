@@ -838,8 +838,8 @@ def parse(argv, doc: str, scales: Mapping, name: str, root: str = "results"):
         "--scale",
         choices=list(scales),
         default="default",
-        help="quick: seconds, for tests; default: ≤ 10 minutes on a 2-core CPU; paper: the "
-        "paper's sizes (hours to days)",
+        help="quick: seconds, for tests; default: minutes on a 2-core CPU (≤ 10; the weak "
+        "target ~20); paper: the paper's sizes (hours to days)",
     )
     parser.add_argument("--out", type=Path, default=None, help="default: results/NAME_SCALE")
     parser.add_argument("--seed", type=int, default=0)
