@@ -33,10 +33,14 @@ if _OWNER:
 _CACHE = os.environ["RIFT_JAX_TEST_CACHE"]
 os.environ["JAX_COMPILATION_CACHE_DIR"] = _CACHE  # for the subprocesses tests start
 # Not on a GPU: there, with the workers sharing it, test_points' programs stopped on
-# CUDA_ERROR_ILLEGAL_ADDRESS (twice, on an H200), and without it every test passed
-# (docs/benchmarks.md, GPU). The subprocesses run on the CPU and share it still.
+# CUDA_ERROR_ILLEGAL_ADDRESS (twice, on an H200), and with it off every test passed
+# (docs/benchmarks.md, GPU). Turned off, not only left unset: a worker that inherits
+# JAX_COMPILATION_CACHE_DIR reads it when it imports JAX. The subprocesses tests start run
+# on the CPU and share it still.
 if jax.default_backend() == "cpu":
     jax.config.update("jax_compilation_cache_dir", _CACHE)
+else:
+    jax.config.update("jax_enable_compilation_cache", False)
 # every program, not only those over a second: the many small ones (a model's
 # initialisation, eager array operations) are the same in every process
 os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
