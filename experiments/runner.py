@@ -206,7 +206,7 @@ class Budget:
     ls_tol: float = 0.0
     rift_prune: float | None = None
     rift_patience: int | None = None
-    recheck_every: int = 10
+    recheck_every: int = rj.solvers.Recipe.recheck_every  # `fit`'s own, not a copy of it
     support: str | None = None
     fista_iterations: int = 100
 
