@@ -25,7 +25,6 @@ import subprocess
 import sys
 import tempfile
 import time
-import warnings
 from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
 
@@ -34,6 +33,7 @@ import numpy as np
 
 import rift_jax as rj
 from rift_jax import _io
+from rift_jax._fit import recorded_failures
 
 # -- writing: an interrupted run never leaves a half-written file ---------------------------
 
@@ -325,12 +325,10 @@ def fit_and_evaluate(
     reports its failed runs). A run that `fit` warns may have failed (a `FitWarning`, or
     RIFT's `CollapseWarning`) is kept and scored as well: its row holds the warning, so a
     study can tell whether the warning was right."""
-    failed = (rj.FitWarning, rj.solvers.CollapseWarning)
-    with warnings.catch_warnings(record=True) as caught:
-        for category in failed:
-            warnings.simplefilter("always", category)
+
+    def run():
         try:
-            result = rj.fit(
+            return rj.fit(
                 scene,
                 train,
                 radar=radar,
@@ -342,19 +340,12 @@ def fit_and_evaluate(
                 **options,
             )
         except rj.solvers.Diverged as error:
-            result = error.result
             print(f"{method}: {error}; scoring the best iterate before it", flush=True)
-    warned = []
-    for caught_warning in caught:  # a likely failure is kept with the row; others go on
-        if issubclass(caught_warning.category, failed):
-            warned.append(str(caught_warning.message))
-        else:
-            warnings.warn_explicit(
-                caught_warning.message,
-                caught_warning.category,
-                caught_warning.filename,
-                caught_warning.lineno,
-            )
+            return error.result
+
+    # a likely failure is kept with the row; other warnings go on
+    result, failed = recorded_failures(run)
+    warned = [str(warning.message) for warning in failed]
     return result, result.evaluate(scene, test), warned
 
 

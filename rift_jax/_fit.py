@@ -24,7 +24,7 @@ from ._models import Field
 from ._operator import grt_operator
 from ._scenes import GridWarning, Scene, grid_size, nesting_granularities, shared_fraction
 from ._sharding import gathered, replicated
-from ._solvers import Diverged, History, Outcome, Stop
+from ._solvers import CollapseWarning, Diverged, History, Outcome, Stop
 from ._solvers._common import DIAGNOSTIC_VIEWS
 from ._solvers.methods import METHODS
 from ._support import (
@@ -238,17 +238,21 @@ def fit(
       viewpoints it did not see best. A fifth of the viewpoints (at least 2, evenly spread)
       is held out; each of ``candidates`` (default ``("fista", "rift-n")``; or a mapping
       of methods to their options) is fitted on the rest, on one support estimated once
-      from every viewpoint; the one whose prediction of the held-out signals leaves the
-      lower residual ‖y − g·Aρ‖/‖y‖ at its best complex gain g wins (the first on a tie;
-      one that collapsed or diverged ranks last), and is fitted again on every viewpoint
-      (if that fit collapses or diverges, the next candidate is, and ``rejected`` says
-      why): the result is that method's, with ``stats["selection"]`` (each candidate's
-      held-out residual, seconds, stop, failure and the warnings that it likely failed,
-      which are recorded, not raised) and the whole choice's time in ``seconds``. The
-      input's warnings (a grid that does not nest, a phaseless signal) are said once, after
-      the fits; a warnings filter that makes them errors raises them then (or, when a fit
-      raised, adds them to its error's notes). It takes no solver options (they differ
-      between methods; give them in ``candidates``) and no `monitor` or `time_limit`.
+      from every viewpoint; each is scored by the residual ‖y − g·Aρ‖/‖y‖ its prediction
+      of the held-out signals leaves at its best complex gain g. The first candidate wins
+      unless a later one's is lower by more than one standard error of their paired
+      per-view difference (the one-standard-error rule; one that collapsed or diverged
+      ranks last), and is fitted again on every viewpoint (if that fit collapses or
+      diverges, the next candidate is, and ``rejected`` says why; if every one does, the
+      first ranked is returned with its failure): the result is that method's, with
+      ``stats["selection"]`` (each candidate's held-out residual and its per-view shares,
+      seconds, stop, failure and the warnings that it likely failed, which are recorded,
+      not raised) and the whole choice's time in ``seconds``. The input's warnings (a grid
+      that does not nest, a phaseless signal) are said once, before any fit, so a warnings
+      filter that makes them errors stops the call there; those of later fits are said
+      once, after them (or, when a fit raised, added to its error's notes). It takes no
+      solver options (they differ between methods; give them in ``candidates``) and no
+      `monitor` or `time_limit`.
       From fewer than 5 viewpoints, or on a zero signal, the candidates are tried in
       their order, unscored.
     - `granularity`, `extent`: the inverse grid (metres).
@@ -663,6 +667,31 @@ class FitWarning(UserWarning):
     """A fit ran to its end but likely failed: it explains the data no better than the zero
     image, or its RIFT field is unlike the data's backprojection while it leaves much of
     the data unexplained (`fit`'s checks), or it was given a signal without phase."""
+
+
+FAILED = (FitWarning, CollapseWarning)  # the warnings that a fit likely failed
+
+
+def recorded_failures(call: Callable, *args, **kwargs) -> tuple[Any, list]:
+    """(``call(*args, **kwargs)``, the warnings that it likely failed (`FAILED`), recorded
+    and not raised); other warnings go on from where they were raised, also when ``call``
+    raises. For code that runs many fits and keeps each one's likely failure as data:
+    `fit(method="auto")`, the experiments' runner."""
+    failed = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            for category in FAILED:
+                warnings.simplefilter("always", category)
+            result = call(*args, **kwargs)
+    finally:  # also when ``call`` raises: what it said is not lost
+        for warning in caught:
+            if issubclass(warning.category, FAILED):
+                failed.append(warning)
+            else:
+                warnings.warn_explicit(
+                    warning.message, warning.category, warning.filename, warning.lineno
+                )
+    return result, failed
 
 
 def _warn_if_phaseless(signal) -> None:

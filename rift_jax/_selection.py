@@ -31,18 +31,19 @@ import numpy as np
 
 from ._fit import (
     AUTO,
+    FAILED,
     FitResult,
-    FitWarning,
     _data,
     _noise,
     check_options,
     check_train_granularity,
     fit,
+    recorded_failures,
 )
 from ._geometry import Radar, Viewpoints, spread
 from ._operator import check_inside
 from ._scenes import GridWarning, Scene
-from ._solvers import CollapseWarning, Diverged, Outcome
+from ._solvers import Diverged, Outcome
 from ._solvers.methods import METHODS
 from ._support import estimate_support
 
@@ -54,8 +55,7 @@ HOLDOUT_SHARE = 0.2  # of the training viewpoints, held out to score the candida
 MIN_HOLDOUT = 2  # ... but at least this many
 MIN_TRAINING = 3  # and this many left to fit on: below, the first candidate runs alone
 MARGIN = 1.0  # standard errors by which a candidate must beat an earlier one to rank first
-_FAILED = (FitWarning, CollapseWarning)  # warnings that a candidate likely failed
-_OURS = (*_FAILED, GridWarning)  # rift_jax's warnings about a fit or its input
+_OURS = (*FAILED, GridWarning)  # rift_jax's warnings about a fit or its input
 
 
 def holdout_residual(predicted, signal) -> float:
@@ -115,29 +115,43 @@ def fit_auto(
     candidates = _check_candidates(candidates)
     # Every fit below would repeat the input's warnings (a grid that does not nest, a
     # phaseless signal): rift_jax's are collected and each said once, at the caller's line,
-    # also when a fit raises; the others (JAX's, ...) go on from where they were raised
+    # also when a fit raises; the others (JAX's, ...) go on from where they were raised.
+    # The input's own are said before any fit, so that a filter that makes one an error
+    # stops the call at once, as it stops a single method's `fit`.
+    said: set = set()
+    prepared = _saying(
+        said, _data, data, viewpoints, radar, extent, granularity, snr_db, seed
+    )  # fmt: skip
+    return _saying(
+        said, _choose, data, prepared, viewpoints, candidates, granularity=granularity,
+        extent=extent, snr_db=snr_db, support=support, seed=seed, progress=progress,
+    )  # fmt: skip
+
+
+def _saying(said: set, call, *args, **kwargs):
+    """``call(*args, **kwargs)`` with rift_jax's warnings collected, then each said once
+    (`_say`; not again if in ``said``, which grows). One that the user's filters make an
+    error is raised after the call, or, if the call raised, added to its error's notes."""
     caught: list = []
     try:
         with warnings.catch_warnings(record=True) as caught:
             for category in _OURS:
                 warnings.simplefilter("always", category)
-            result = _choose(
-                data, viewpoints, candidates, radar=radar, granularity=granularity,
-                extent=extent, snr_db=snr_db, support=support, seed=seed, progress=progress,
-            )  # fmt: skip
+            result = call(*args, **kwargs)
     except BaseException as error:  # said, but never in place of the error itself
-        for raised in _say(caught):
+        for raised in _say(caught, said):
             error.add_note(f"{type(raised).__name__}: {raised}")
         raise
-    for raised in _say(caught):  # the user's filter made a warning an error
+    for raised in _say(caught, said):  # the user's filter made a warning an error
         raise raised
     return result
 
 
-def _say(caught) -> list[Warning]:
+def _say(caught, said: set) -> list[Warning]:
     """Say each of rift_jax's ``caught`` warnings once, at the line that called `fit`, and
-    the others where they were raised; returns those the user's filters raised instead."""
-    said, raised = set(), []
+    the others where they were raised; returns those the user's filters raised instead.
+    ``said`` holds the (category, message) of those said before, and grows."""
+    raised = []
     for warning in caught:
         try:
             if not issubclass(warning.category, _OURS):
@@ -146,21 +160,20 @@ def _say(caught) -> list[Warning]:
                 )
             elif (key := (warning.category, str(warning.message))) not in said:
                 said.add(key)
-                # _say, fit_auto, fit, the caller
-                warnings.warn(warning.message, warning.category, stacklevel=4)
+                # _say, _saying, fit_auto, fit, the caller
+                warnings.warn(warning.message, warning.category, stacklevel=5)
         except Warning as error:
             raised.append(error)
     return raised
 
 
 def _choose(
-    data, viewpoints, candidates, *, radar, granularity, extent, snr_db, support, seed, progress
-) -> FitResult:
-    """`fit_auto`'s work, on checked arguments."""
+    data, prepared, viewpoints, candidates, *, granularity, extent, snr_db, support, seed,
+    progress,
+) -> FitResult:  # fmt: skip
+    """`fit_auto`'s work, on checked arguments and the data `_data` ``prepared``."""
     given = {"granularity": granularity, "extent": extent, "snr_db": snr_db}
-    signal, scale, radar, extent, granularity, known = _data(
-        data, viewpoints, radar, extent, granularity, snr_db, seed
-    )
+    signal, scale, radar, extent, granularity, known = prepared
     signal = np.asarray(signal) * scale  # in the input's units, as a given `init` field is
     # the candidates fit arrays, which say no noise level: the one `fit` would know is
     # passed to those that use it (RIFT), as `noise` in these units
@@ -200,8 +213,10 @@ def _choose(
         if failure is None:
             break
         rejected[method] = str(failure)
-    else:  # every one failed: the best ranked, saying so (and raising, if it diverged)
+    else:  # every one failed: the best ranked, saying so (and raising, if it diverged);
+        # returned, not rejected: its own failure is in its stats or its error
         result, caught, failure = attempts[0]
+        del rejected[ranking[0]]
     for warning in caught:  # the final fit's: `fit_auto` says them to the caller
         warnings.warn(warning.message, warning.category, stacklevel=2)
     # as fit's: from the estimate on (the final fits' synthesis of a Scene included)
@@ -251,33 +266,13 @@ def _final(method, data, viewpoints, support, seed, progress, radar, given, cand
     """The fit of ``method`` on every viewpoint: (result, the warnings that it likely
     failed, recorded, and its failure: RIFT's collapse, a `Diverged`, or None)."""
     try:
-        result, caught = _recorded(
+        result, caught = recorded_failures(
             fit, data, viewpoints, method=method, support=support, seed=seed,
             progress=progress, radar=radar, **given, **candidates[method],
         )  # fmt: skip
     except Diverged as error:
         return error.result, [], error
     return result, caught, result.stats.get("collapse")
-
-
-def _recorded(call, *args, **kwargs):
-    """(``call(*args, **kwargs)``, the warnings that it likely failed, recorded and not
-    raised); other warnings go on to the user."""
-    failed = []
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            for category in _FAILED:
-                warnings.simplefilter("always", category)
-            result = call(*args, **kwargs)
-    finally:  # also when ``call`` raises: what it said is not lost
-        for warning in caught:
-            if issubclass(warning.category, _FAILED):
-                failed.append(warning)
-            else:  # on to `fit_auto`, which says them to the caller
-                warnings.warn_explicit(
-                    warning.message, warning.category, warning.filename, warning.lineno
-                )
-    return result, failed
 
 
 def _check_candidates(candidates) -> dict[str, dict]:
@@ -326,7 +321,7 @@ def _score(method, options, signal, viewpoints, kept, held, grid, support, radar
         except Diverged as error:  # scored on its best iterate, and ranked last
             return error.result
 
-    result, caught = _recorded(run)
+    result, caught = recorded_failures(run)
     errors = holdout_errors(result.predict(viewpoints.subset(held)).signal, signal[held])
     failure = result.stats.get("collapse")
     if result.stopped.outcome is Outcome.DIVERGED:

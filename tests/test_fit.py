@@ -549,6 +549,7 @@ def test_auto_passes_over_a_candidate_that_collapsed(small_cube, monkeypatch):
         warnings.simplefilter("always")
         alone = rj.fit(scene, train[:4], **options | {"candidates": {"rift-n": COLLAPSING}})
     assert alone.method == "rift-n" and alone.stats["collapse"] is not None
+    assert alone.stats["selection"]["rejected"] == {}  # returned, collapse and all
     assert rj.solvers.CollapseWarning in {w.category for w in caught}
     assert all(w.filename == __file__ for w in caught)  # at the line that called fit
 
@@ -623,23 +624,30 @@ def test_the_default_method_chooses_between_fista_and_rift(small_cube):
     np.testing.assert_array_equal(result.scene.reflectivity, direct.scene.reflectivity)
 
 
-def test_auto_says_each_warning_once_at_the_callers_line(small_cube):
+def test_auto_says_each_warning_once_at_the_callers_line(small_cube, monkeypatch):
     """Each fit inside "auto" meets the same input: a grid that does not nest warns once,
-    not once per fit, and at the line that called `fit`."""
+    not once per fit, and at the line that called `fit`; a filter that makes it an error
+    stops the call before any fit, as it stops a single method's `fit`."""
     radar, scene, train, _ = small_cube
+    options = dict(radar=radar, granularity=0.8, candidates=AUTO_CANDIDATES, progress=False)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        rj.fit(scene, train, radar=radar, granularity=0.8, candidates=AUTO_CANDIDATES,
-               progress=False)  # fmt: skip
+        rj.fit(scene, train, **options)
     grid = [str(w.message) for w in caught if issubclass(w.category, rj.GridWarning)]
     assert grid and len(grid) == len(set(grid))  # the non-nesting grid's, each once
     assert all(w.filename == __file__ for w in caught)
+    monkeypatch.setattr(_selection, "fit", lambda *_, **__: pytest.fail("a fit ran"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rj.GridWarning)
+        with pytest.raises(rj.GridWarning, match="nest"):
+            rj.fit(scene, train, **options)
 
 
-def test_auto_keeps_its_warnings_and_its_errors_when_a_fit_raises(small_cube):
+def test_auto_keeps_its_warnings_and_its_errors_when_a_fit_raises(small_cube, monkeypatch):
     """A phaseless signal on an empty support: the first candidate's fit raises, and the
-    warning is still said (once); with warnings as errors, the fit's own error comes out,
-    the warning in its notes."""
+    warning is still said (once). With warnings as errors, the input's warning stops the
+    call before any fit; one that a fit raises before its own error comes out in that
+    error's notes."""
     radar, scene, train, _ = small_cube
     magnitudes = np.abs(np.asarray(rj.synthesize(scene, train, radar).signal))
     stop = dict(support=np.zeros((5,) * 3, bool), extent=2.0, granularity=1.0, radar=radar)
@@ -651,9 +659,19 @@ def test_auto_keeps_its_warnings_and_its_errors_when_a_fit_raises(small_cube):
     assert len(phaseless) == 1 and phaseless[0].filename == __file__
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        with pytest.raises(ValueError, match="no points") as info:
+        with pytest.raises(rj.FitWarning, match="carries no phase"):
             rj.fit(magnitudes, train, **stop)
-    assert any("carries no phase" in note for note in info.value.__notes__)
+
+    def warns_then_raises(*_, **__):
+        warnings.warn("a stand-in warning from inside a fit", rj.GridWarning, stacklevel=1)
+        raise ValueError("a stand-in error")
+
+    monkeypatch.setattr(_selection, "fit", warns_then_raises)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match="stand-in error") as info:
+            rj.fit(scene, train, radar=radar, progress=False)
+    assert any("stand-in warning" in note for note in info.value.__notes__)
 
 
 def test_auto_gives_way_when_a_final_fit_diverges(small_cube, monkeypatch):
