@@ -33,7 +33,6 @@ import numpy as np
 
 import rift_jax as rj
 from rift_jax import _io
-from rift_jax._fit import recorded_failures
 
 # -- writing: an interrupted run never leaves a half-written file ---------------------------
 
@@ -344,7 +343,7 @@ def fit_and_evaluate(
             return error.result
 
     # a likely failure is kept with the row; other warnings go on
-    result, failed = recorded_failures(run)
+    result, failed = rj.recorded_failures(run)
     warned = [str(warning.message) for warning in failed]
     return result, result.evaluate(scene, test), warned
 

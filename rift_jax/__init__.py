@@ -42,6 +42,7 @@ from . import solvers as solvers  # noqa: E402
 from ._fit import FitResult as FitResult  # noqa: E402
 from ._fit import FitWarning as FitWarning  # noqa: E402
 from ._fit import fit as fit  # noqa: E402
+from ._fit import recorded_failures as recorded_failures  # noqa: E402
 from ._geometry import C0 as C0  # noqa: E402
 from ._geometry import Radar as Radar  # noqa: E402
 from ._geometry import Viewpoints as Viewpoints  # noqa: E402

@@ -240,9 +240,9 @@ def fit(
       of methods to their options) is fitted on the rest, on one support estimated once
       from every viewpoint; each is scored by the residual ‖y − g·Aρ‖/‖y‖ its prediction
       of the held-out signals leaves at its best complex gain g. The first candidate wins
-      unless a later one's is lower by more than one standard error of their paired
-      per-view difference (the one-standard-error rule; one that collapsed or diverged
-      ranks last), and is fitted again on every viewpoint (if that fit collapses or
+      unless a later one's is lower by more than one standard error of the sum of their
+      paired per-view differences (the one-standard-error rule; one that collapsed or
+      diverged ranks last); the winner is fitted again on every viewpoint (if that fit collapses or
       diverges, the next candidate is, and ``rejected`` says why; if every one does, the
       first ranked is returned with its failure): the result is that method's, with
       ``stats["selection"]`` (each candidate's held-out residual and its per-view shares,
@@ -673,10 +673,17 @@ FAILED = (FitWarning, CollapseWarning)  # the warnings that a fit likely failed
 
 
 def recorded_failures(call: Callable, *args, **kwargs) -> tuple[Any, list]:
-    """(``call(*args, **kwargs)``, the warnings that it likely failed (`FAILED`), recorded
-    and not raised); other warnings go on from where they were raised, also when ``call``
-    raises. For code that runs many fits and keeps each one's likely failure as data:
-    `fit(method="auto")`, the experiments' runner."""
+    """Run ``call(*args, **kwargs)`` (e.g. `fit`) and keep the warnings that it likely
+    failed as data: returns (its result, those warnings as `warnings.WarningMessage`
+    records), a `FitWarning` or RIFT's `CollapseWarning` recorded and not said. Other
+    warnings go on from where they were raised, also when ``call`` raises.
+
+    For a study that runs many fits and reports which were warned (the experiments do;
+    `fit(method="auto")` so judges its candidates):
+
+        result, failed = rj.recorded_failures(rj.fit, scene, viewpoints, method="fista")
+        warned = [str(w.message) for w in failed]
+    """
     failed = []
     try:
         with warnings.catch_warnings(record=True) as caught:

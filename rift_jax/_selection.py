@@ -49,8 +49,9 @@ from ._support import estimate_support
 
 CANDIDATES = ("fista", "rift-n")
 """``"auto"``'s candidates, the two methods that were best in some cells of the stress grid
-(FISTA in 77 of 150, RIFT(N) in 73; no other in any): the first also wins ties and runs
-alone where too few viewpoints leave none to hold out."""
+(FISTA in 77 of 150, RIFT(N) in 73; no other in any): the first keeps its place unless
+another is clearly better (`MARGIN`), and runs alone where too few viewpoints leave none
+to hold out."""
 HOLDOUT_SHARE = 0.2  # of the training viewpoints, held out to score the candidates ...
 MIN_HOLDOUT = 2  # ... but at least this many
 MIN_TRAINING = 3  # and this many left to fit on: below, the first candidate runs alone
@@ -72,15 +73,17 @@ def holdout_errors(predicted, signal) -> np.ndarray:
     the views v along the first axis, at the one gain g best for all of them together.
     They sum to the residual², so two candidates' per-view differences say how much of
     their residuals' difference is more than the chance of which views were held out.
-    A zero or non-finite prediction leaves each view its whole share of ‖y‖²."""
+    A zero or non-finite prediction explains nothing: each view keeps its whole share of
+    ‖y‖² (the shares of a zero ``signal``: 1/k each, as for a prediction of nothing)."""
     p, y = (np.asarray(x, np.complex128) for x in (predicted, signal))
     p, y = p.reshape(len(p), -1), y.reshape(len(y), -1)
     power, p_power = np.sum(np.abs(y) ** 2), np.sum(np.abs(p) ** 2)
-    gain = np.vdot(p, y) / p_power if p_power > 0 else 0.0
-    if not np.isfinite(gain):  # a non-finite prediction explains nothing
-        gain, p = 0.0, np.zeros_like(y)
-    errors = np.sum(np.abs(y - gain * p) ** 2, axis=1)
-    return errors / power if power > 0 else np.zeros(len(y))
+    if not power > 0:
+        return np.full(len(y), 1 / len(y))
+    gain = np.vdot(p, y) / p_power if np.isfinite(p_power) and p_power > 0 else 0.0
+    if gain == 0 or not np.isfinite(gain):  # also NaN in p, which a zero gain would keep
+        return np.sum(np.abs(y) ** 2, axis=1) / power
+    return np.sum(np.abs(y - gain * p) ** 2, axis=1) / power
 
 
 def fit_auto(
@@ -217,7 +220,7 @@ def _choose(
         # returned, not rejected: its own failure is in its stats or its error
         result, caught, failure = attempts[0]
         del rejected[ranking[0]]
-    for warning in caught:  # the final fit's: `fit_auto` says them to the caller
+    for warning in caught:  # the final fit's: `_saying` says them to the caller
         warnings.warn(warning.message, warning.category, stacklevel=2)
     # as fit's: from the estimate on (the final fits' synthesis of a Scene included)
     seconds = time.perf_counter() - start
@@ -244,22 +247,30 @@ def _rank(scores: dict[str, dict]) -> list[str]:
     residual, then every one that collapsed or diverged on the split."""
     ok = [m for m in scores if scores[m]["failure"] is None]
     failed = [m for m in scores if scores[m]["failure"] is not None]
-    lead = None
-    for method in ok:
-        if lead is None or _clearly_better(scores[method], scores[lead]):
+
+    def residual(method: str) -> float:
+        return scores[method]["holdout_residual"]
+
+    if not ok:
+        return sorted(failed, key=residual)
+    lead = ok[0]
+    for method in ok[1:]:
+        if _clearly_better(scores[method], scores[lead]):
             lead = method
-    residual = lambda m: scores[m]["holdout_residual"]  # noqa: E731
     rest = sorted((m for m in ok if m != lead), key=residual)
-    return [lead] * (lead is not None) + rest + sorted(failed, key=residual)
+    return [lead, *rest, *sorted(failed, key=residual)]
 
 
 def _clearly_better(score: dict, than: dict) -> bool:
     """Whether ``score``'s held-out residual² is below ``than``'s by more than `MARGIN`
-    standard errors of their sum of per-view differences (paired: the same views, the same
-    noise)."""
+    standard errors of the sum of their per-view differences (paired: the same views, the
+    same noise), √k times the differences' standard deviation for k views: a paired t
+    above `MARGIN`. The views' shares share one gain and neighbouring views look alike,
+    so the error is if anything understated, and the rule errs towards a change. From 2
+    held-out views it asks for a lower share on both."""
     difference = np.asarray(than["holdout_errors"]) - np.asarray(score["holdout_errors"])
-    spread = np.std(difference, ddof=1) if len(difference) > 1 else 0.0
-    return bool(np.sum(difference) > MARGIN * np.sqrt(len(difference)) * spread)
+    deviation = np.std(difference, ddof=1) if len(difference) > 1 else 0.0
+    return bool(np.sum(difference) > MARGIN * np.sqrt(len(difference)) * deviation)
 
 
 def _final(method, data, viewpoints, support, seed, progress, radar, given, candidates):
