@@ -186,6 +186,27 @@ def _losses(rows: list[dict], grid_rows: list[dict], method: str) -> str:
     return f" Loss: the replays' {losses(rows)}, the grid's runs' {losses(ran)}."
 
 
+def _chose(row: dict) -> str:
+    """``"auto"``'s choice, and any candidate whose final fit failed and gave way."""
+    selection = row["selection"]
+    rejected = "".join(f", not {stability.LABELS[m]}" for m in selection["rejected"])
+    return stability.LABELS[selection["chosen"]] + rejected
+
+
+def _held_out(row: dict) -> str:
+    """Each candidate's held-out residual, in the candidates' order, and for the later ones
+    how many standard errors they beat the first by (`paired_t`; > 1 takes the lead)."""
+    scores = row["selection"]["scores"]
+    if not scores:
+        return "– (unscored)"
+    parts = []
+    for method, score in scores.items():
+        t = score.get("paired_t")
+        part = f"{stability.LABELS[method]} {score['holdout_residual']:.5f}"
+        parts.append(part + ("" if t is None else f" (t {t:+.1f})"))
+    return " / ".join(parts)
+
+
 def report(results, cfg, out: Path, grid: Path | None, grid_rows: list[dict]) -> None:
     """results.md: each replay beside the grid's own run and FISTA's; the verdicts go into
     the rows of ``results`` too (results.json is written before each report)."""
@@ -219,6 +240,8 @@ def report(results, cfg, out: Path, grid: Path | None, grid_rows: list[dict]) ->
         ("fails", verdict),
         ("s", lambda r: f"{r['wall_seconds']:.0f}"),
     ]
+    if cfg.replay_method == AUTO:  # what it chose, and on what evidence
+        columns[5:5] = [("chose", _chose), ("held-out residuals, t", _held_out)]
     lines = [
         f"# Stress-grid cells replayed, scale `{results['scale']}`",
         "",

@@ -207,6 +207,9 @@ def _choose(
                 progress,
             )  # fmt: skip
         ranking = _rank(scores)
+        first, *later = candidates
+        for method in later:  # how clearly each beat the first (> `MARGIN`: it did)
+            scores[method]["paired_t"] = paired_t(scores[method], scores[first])
     rejected, attempts = {}, []
     for method in ranking:  # a final fit that fails gives way to the next candidate
         attempts.append(
@@ -263,14 +266,23 @@ def _rank(scores: dict[str, dict]) -> list[str]:
 
 def _clearly_better(score: dict, than: dict) -> bool:
     """Whether ``score``'s held-out residual² is below ``than``'s by more than `MARGIN`
-    standard errors of the sum of their per-view differences (paired: the same views, the
-    same noise), √k times the differences' standard deviation for k views: a paired t
-    above `MARGIN`. The views' shares share one gain and neighbouring views look alike,
-    so the error is if anything understated, and the rule errs towards a change. From 2
-    held-out views it asks for a lower share on both."""
+    standard errors (`paired_t`). The views' shares share one gain and neighbouring views
+    look alike, so the error is if anything understated, and the rule errs towards a
+    change. From 2 held-out views it asks for a lower share on both."""
+    return paired_t(score, than) > MARGIN
+
+
+def paired_t(score: dict, than: dict) -> float:
+    """How many standard errors ``score``'s held-out residual² lies below ``than``'s: the
+    sum of their per-view differences (`holdout_errors`; paired: the same views, the same
+    noise) over its standard error, √k times the differences' standard deviation for k
+    views. ±inf where every view differs by the same amount, 0 where none differs."""
     difference = np.asarray(than["holdout_errors"]) - np.asarray(score["holdout_errors"])
-    deviation = np.std(difference, ddof=1) if len(difference) > 1 else 0.0
-    return bool(np.sum(difference) > MARGIN * np.sqrt(len(difference)) * deviation)
+    total = float(np.sum(difference))
+    error = np.sqrt(len(difference)) * np.std(difference, ddof=1) if len(difference) > 1 else 0
+    if error > 0:
+        return total / float(error)
+    return float(np.sign(total) * np.inf) if total else 0.0
 
 
 def _final(method, data, viewpoints, support, seed, progress, radar, given, candidates):

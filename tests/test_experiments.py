@@ -674,8 +674,19 @@ def test_replay_runs_fits_default_where_the_grid_ran_fista():
             budgets = dict(cfg.budgets)
             expected |= {"candidates": {m: dict(budgets[m]) for m in ("fista", "rift-n")}}
         assert run.options == expected
-        if scale == "quick":  # in fit's order: the first candidate wins ties
+        if scale == "quick":  # in fit's order: the first keeps its place unless beaten clearly
             assert list(run.options["candidates"]) == ["fista", "rift-n"]
+
+
+def test_replay_says_what_auto_chose_and_on_what_evidence():
+    """An auto replay's row says the method chosen (and any whose final fit gave way), each
+    candidate's held-out residual, and how clearly the later ones beat the first."""
+    scores = {"fista": {"holdout_residual": 0.99602},
+              "rift-n": {"holdout_residual": 0.99599, "paired_t": 0.41}}  # fmt: skip
+    row = {"selection": {"chosen": "fista", "rejected": {"rift-n": "collapsed"}, "scores": scores}}
+    assert replay._chose(row) == "FISTA, not RIFT(N)"
+    assert replay._held_out(row) == "FISTA 0.99602 / RIFT(N) 0.99599 (t +0.4)"
+    assert replay._held_out({"selection": {"scores": {}}}) == "– (unscored)"
 
 
 def test_replay_names_the_cells_best_other_method():

@@ -456,6 +456,7 @@ def test_auto_keeps_the_first_candidate_unless_another_is_clearly_better():
         return base - (t * deviation / np.sqrt(20) + deviation * z)
 
     for t, ranked in ((0.9, ["fista", "rift-n"]), (1.1, ["rift-n", "fista"])):
+        assert _selection.paired_t(score(lower_by(t)), score(base)) == pytest.approx(t)
         assert score(lower_by(t))["holdout_residual"] < score(base)["holdout_residual"]
         assert _selection._rank({"fista": score(base), "rift-n": score(lower_by(t))}) == ranked
     noisy = lower_by(0.9)  # lower, but within the noise
@@ -465,8 +466,11 @@ def test_auto_keeps_the_first_candidate_unless_another_is_clearly_better():
     scores = {"a": score(base), "b": score(base - 1e-3, "collapsed"), "c": score(noisy),
               "d": score(clear)}  # fmt: skip
     assert _selection._rank(scores) == ["d", "c", "a", "b"]
-    # a per-view tie keeps the first; the errors sum to the residual²
+    # a per-view tie keeps the first; the same gain on every view is infinitely clear
     assert _selection._rank({"x": score(base), "y": score(base)}) == ["x", "y"]
+    assert _selection.paired_t(score(base), score(base)) == 0.0
+    assert _selection.paired_t(score(clear), score(base)) == np.inf
+    # the errors sum to the residual²
     rho = rng.normal(size=(4, 3, 2)) + 1j * rng.normal(size=(4, 3, 2))
     y = rho + 0.3 * (rng.normal(size=rho.shape) + 1j * rng.normal(size=rho.shape))
     errors = _selection.holdout_errors(2j * rho, y)
