@@ -242,9 +242,10 @@ def fit(
       of the held-out signals leaves at its best complex gain g. The first candidate wins
       unless a later one's is lower by more than one standard error of the sum of their
       paired per-view differences (the one-standard-error rule; one that collapsed or
-      diverged ranks last); the winner is fitted again on every viewpoint (if that fit collapses or
-      diverges, the next candidate is, and ``rejected`` says why; if every one does, the
-      first ranked is returned with its failure): the result is that method's, with
+      diverged ranks last); the winner is fitted again on every viewpoint (if that fit
+      collapses or diverges, the next candidate is, and ``rejected`` says why; if every
+      one does, the first ranked is returned with its failure): the result is that
+      method's, with
       ``stats["selection"]`` (each candidate's held-out residual and its per-view shares,
       seconds, stop, failure and the warnings that it likely failed, which are recorded,
       not raised) and the whole choice's time in ``seconds``. The input's warnings (a grid
