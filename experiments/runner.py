@@ -625,6 +625,8 @@ def execute(
             # RIFT's collapse check: what was retried, and what still holds (None: nothing)
             "remedies": result.stats.get("remedies", []),
             "collapse": result.stats.get("collapse"),
+            # what `fit`'s smooth-blob warning read, so that a study can re-judge it later
+            "coherence": result.stats.get("coherence"),
             "warnings": warned,  # where `fit` judged the run a likely failure
         }
         if shared is not None:  # estimated once for every run on the same data
