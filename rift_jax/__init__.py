@@ -39,10 +39,10 @@ from . import losses as losses  # noqa: E402
 from . import metrics as metrics  # noqa: E402
 from . import scenes as scenes  # noqa: E402
 from . import solvers as solvers  # noqa: E402
+from ._checks import FitWarning as FitWarning  # noqa: E402
+from ._checks import recorded_failures as recorded_failures  # noqa: E402
 from ._fit import FitResult as FitResult  # noqa: E402
-from ._fit import FitWarning as FitWarning  # noqa: E402
 from ._fit import fit as fit  # noqa: E402
-from ._fit import recorded_failures as recorded_failures  # noqa: E402
 from ._geometry import C0 as C0  # noqa: E402
 from ._geometry import Radar as Radar  # noqa: E402
 from ._geometry import Viewpoints as Viewpoints  # noqa: E402

@@ -30,16 +30,15 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from ._checks import FAILED, recorded_failures
 from ._fit import (
     AUTO,
-    FAILED,
     FitResult,
     _data,
     _noise,
     check_options,
     check_train_granularity,
     fit,
-    recorded_failures,
 )
 from ._geometry import Radar, Viewpoints, spread
 from ._operator import check_inside

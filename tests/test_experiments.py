@@ -77,7 +77,8 @@ def test_quick_scale_numbers_are_finite_and_in_range(quick_run):
         assert 0 <= row["t_iou"] <= 1
         assert 0 <= row["p_rmse"] <= math.pi
         assert 0 <= row["residual"] < 10
-        assert 0 < row["coherence"] <= 1 + 1e-6  # fit's check, kept for re-judging its warning
+        if row["method"] != "points":  # fit's check on a grid, kept to re-judge its warning
+            assert 0 < row["coherence"] <= 1 + 1e-6
         assert row["wall_seconds"] > 0 and row["iterations"] >= 1
     text = (out / "results.md").read_text()
     assert all(row["run"] in text for row in results["rows"])

@@ -360,9 +360,9 @@ def test_every_method_defaults_to_the_estimated_support(small_cube):
 
 
 def test_check_measures_residual_and_coherence_by_hand(small_cube):
-    """`_check`'s numbers against NumPy on the same views: ‖y − Aρ‖/‖y‖, and cos(|ρ|, |Aᴴy|),
+    """`check_fit`'s numbers against NumPy on the same views: ‖y − Aρ‖/‖y‖, and cos(|ρ|, |Aᴴy|),
     1 for ρ = Aᴴy itself and lower for a flat ρ (a smooth blob)."""
-    from rift_jax._fit import _check
+    from rift_jax._checks import check_fit
 
     radar, scene, train, _ = small_cube
     data = rj.synthesize(scene, train, radar)
@@ -370,19 +370,19 @@ def test_check_measures_residual_and_coherence_by_hand(small_cube):
     operator = rj.grt_operator(radar, train, grid.points())
     signal = np.asarray(data.signal)
     back = np.asarray(operator.fn.adjoint(signal))
-    matched = _check(operator, signal, back, None, grid.points(), train)
+    matched = check_fit(operator, signal, back, None, grid.points(), train)
     assert matched["coherence"] == pytest.approx(1.0, abs=1e-5)
     residual = signal - np.asarray(operator.fn(back))
     assert matched["data_residual"] == pytest.approx(
         np.linalg.norm(residual) / np.linalg.norm(signal), rel=1e-4
     )
-    flat = _check(operator, signal, np.ones_like(back), None, grid.points(), train)
+    flat = check_fit(operator, signal, np.ones_like(back), None, grid.points(), train)
     expected = np.abs(back).sum() / (np.sqrt(back.size) * np.linalg.norm(back))
     assert flat["coherence"] == pytest.approx(expected, rel=1e-4) and expected < 0.9
     # a pruned field (0 off its active set) is read over its own points: Aᴴy's sidelobes
     # off the set do not count against it, as they would over every point
     kept = np.abs(back) >= np.quantile(np.abs(back), 0.9)
-    pruned = _check(operator, signal, np.where(kept, back, 0), None, grid.points(), train)
+    pruned = check_fit(operator, signal, np.where(kept, back, 0), None, grid.points(), train)
     assert pruned["coherence"] == pytest.approx(1.0, abs=1e-5)
     everywhere = np.linalg.norm(back[kept]) / np.linalg.norm(back)  # cos over every point
     assert everywhere < 0.9
@@ -392,7 +392,7 @@ def test_failed_fit_warnings_name_the_cause():
     """Residual ≥ 1 names the support when it leaked, RIFT's training, or the grid; a
     RIFT field unlike the backprojection names the smooth-blob collapse; a good fit is
     silent."""
-    from rift_jax._fit import _warn_if_failed
+    from rift_jax._checks import warn_if_failed
 
     cases = [
         ("lsmr", {"data_residual": 1.2, "coherence": 0.9, "support_leak": 0.8}, True, "support"),
@@ -402,25 +402,25 @@ def test_failed_fit_warnings_name_the_cause():
     ]
     for method, stats, on_support, cause in cases:
         with pytest.warns(rj.FitWarning, match=cause):
-            _warn_if_failed(method, stats, on_support)
+            warn_if_failed(method, stats, on_support)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        _warn_if_failed("fista", {"data_residual": 0.9, "coherence": 0.5}, False)  # not RIFT
-        _warn_if_failed("rift-n", {"data_residual": 0.9, "coherence": 0.85}, False)
+        warn_if_failed("fista", {"data_residual": 0.9, "coherence": 0.5}, False)  # not RIFT
+        warn_if_failed("rift-n", {"data_residual": 0.9, "coherence": 0.85}, False)
         # a good field trained with complex MSE (0.68-0.80 on the stress grid)
         mse = {"data_residual": 0.9, "coherence": 0.68, "recipe": {"loss": "mse"}}
-        _warn_if_failed("rift-n", mse, False)
+        warn_if_failed("rift-n", mse, False)
         # a field that explains the data is no collapse, however sharp against Aᴴy
-        _warn_if_failed("rift-n", {"data_residual": 0.1, "coherence": 0.55}, False)
+        warn_if_failed("rift-n", {"data_residual": 0.1, "coherence": 0.55}, False)
         # at 0 dB a perfect fit leaves 0.71: the residual beyond the noise's is what counts
-        _warn_if_failed("rift-n", {"data_residual": 0.72, "coherence": 0.55}, False, 0.707)
+        warn_if_failed("rift-n", {"data_residual": 0.72, "coherence": 0.55}, False, 0.707)
     # the robust loss's failed fields scored 0.74-0.79: warned at that loss, not at MSE's
     for loss, coherence, floor in (("robust", 0.75, 0.8), ("mse", 0.6, 0.65)):
         stats = {"data_residual": 0.9, "coherence": coherence, "recipe": {"loss": loss}}
         with pytest.warns(rj.FitWarning, match=rf"= {coherence:.2f} < {floor}\): the smooth"):
-            _warn_if_failed("rift-s", stats, False)
+            warn_if_failed("rift-s", stats, False)
     with pytest.warns(rj.FitWarning, match="smooth-blob"):  # a collapse at 0 dB
-        _warn_if_failed("rift-n", {"data_residual": 0.98, "coherence": 0.55}, False, 0.707)
+        warn_if_failed("rift-n", {"data_residual": 0.98, "coherence": 0.55}, False, 0.707)
 
 
 # -- method="auto": the candidate that predicts held-out viewpoints best ----------------------

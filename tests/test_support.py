@@ -14,7 +14,7 @@ from conftest import (
 )
 
 import rift_jax as rj
-import rift_jax._fit
+import rift_jax._checks
 from rift_jax._geometry import spread
 from rift_jax._padding import ladder_size
 from rift_jax._scenes import _scene_from_boxes
@@ -87,7 +87,7 @@ def test_support_leak_reads_a_bounded_sample_of_views(small_cube, monkeypatch):
     that its cost does not grow with the fit's view count: here 10 of 30, checked against
     the same ratio computed by hand on those views."""
     radar, scene, train, _ = small_cube
-    monkeypatch.setattr(rift_jax._fit, "_LEAK_VIEWS", 10)
+    monkeypatch.setattr(rift_jax._checks, "_LEAK_VIEWS", 10)
     half = np.zeros(scene.shape, bool)
     half[: scene.shape[0] // 2 + 1] = True
     result = rj.fit(
