@@ -162,7 +162,13 @@ def warn_if_failed(method: str, stats: dict, on_support: bool, noise_floor: floa
     loss = stats.get("recipe", {}).get("loss")
     floor = _COHERENCE_MSE if loss == "mse" or loss is LOSSES["mse"] else _COHERENCE
     if residual >= 1:
-        if on_support and stats["support_leak"] >= 0.5:
+        if stats.get("noise_lambda") and coherence == 0:  # FISTA's known noise kept no point
+            cause = (
+                f"FISTA's λ, at least the known noise's own backprojection (noise_lambda "
+                f"{stats['noise_lambda']:.3g}), kept no point: at these viewpoints the data "
+                "hold nothing above their noise; add viewpoints, or try `method='rift-n'`"
+            )
+        elif on_support and stats["support_leak"] >= 0.5:
             cause = (
                 f"the support dropped part of the scene (support_leak "
                 f"{stats['support_leak']:.2f}): pass `support=None`, or a mask from "

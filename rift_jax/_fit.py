@@ -117,10 +117,15 @@ class FitResult:
         """The reconstruction's signals at ``viewpoints``, normalised like `synthesize`
         (max |S| = 1): the GRT of `scene`, or of `trained` when the fit ran on a finer
         grid (for RIFT: the INR's rendering on the points it was trained on); for point
-        scatterers, theirs from their exact positions."""
+        scatterers, theirs from their exact positions. A reconstruction of ρ = 0 (FISTA on
+        data that its noise swamps, a zero signal's) predicts zeros (``scale`` 1)."""
         if self.points is not None:
             return synthesize(self.points, viewpoints, self.radar)
         scene = self.scene if self.trained is None else self.trained
+        if not np.any(np.asarray(scene.reflectivity)):  # `synthesize` refuses an empty scene
+            check_instance("predict: `viewpoints`", viewpoints, Viewpoints, "rift_jax.Viewpoints")
+            zeros = jnp.zeros((len(viewpoints), *self.radar.signal_shape), jnp.complex64)
+            return RadarData(zeros, 1.0, viewpoints, self.radar)
         return synthesize(scene, viewpoints, self.radar)
 
     def render(self, granularity: float, extent: float | None = None) -> Scene:
@@ -230,7 +235,9 @@ def fit(
     - `method`: ``"auto"`` (the default: FISTA or RIFT(N), chosen on held-out viewpoints,
       below; docs/solvers.md, "Which method"), ``"fista"`` (jaxopt, least squares with a
       sparse prior: the fast choice, which never failed on the stress grid at every
-      method's defaults), ``"kaczmarz"`` (the paper's baseline), ``"lsmr"`` (lineax),
+      method's defaults; where the noise level is known, as below, its λ is at least the
+      noise's own backprojection, so that it keeps no point the noise could have made),
+      ``"kaczmarz"`` (the paper's baseline), ``"lsmr"`` (lineax),
       ``"gauss-newton"`` (optimistix; ``damped=True`` for Levenberg-Marquardt), or RIFT:
       ``"rift-n"`` / ``"rift-s"`` (an INR trained with optax; see `rift_jax.solvers.rift`
       and `Recipe`; where the noise level is known, as below, its stopping rule and
@@ -291,8 +298,8 @@ def fit(
       backprojection while it does not explain the data (coherence < 0.65 trained with
       complex MSE, < 0.8 with another loss, and a residual ≥ 0.5 beyond the noise's, where
       ``snr_db`` is known: the smooth-blob collapse).
-    - `seed`: seeds noise, Kaczmarz's block order, FISTA's power iteration, and RIFT's
-      initialisation and viewpoint order.
+    - `seed`: seeds noise, Kaczmarz's block order, FISTA's power iteration and noise
+      draw, and RIFT's initialisation and viewpoint order.
     - `progress`: show a progress bar on runs longer than two seconds.
     - `monitor`: ``monitor(iteration, seconds, current)`` after every iteration (sweep,
       check, epoch), where ``current()`` is the best reconstruction so far as a `Scene` on
@@ -375,7 +382,7 @@ def fit(
     if chosen.seeded:
         options = {"seed": seed, **options}
     solver_options = options
-    if "noise" in chosen.options:  # RIFT: what of its loss is noise (`rift`'s `noise`)
+    if "noise" in chosen.options:  # RIFT: what of its loss is noise; FISTA: λ's floor
         solver_options = options | noise
     if isinstance(options.get("init"), Field):  # a result's field is in the scene's units
         solver_options = {**solver_options, "init": options["init"].scaled(1 / scale)}
@@ -579,7 +586,7 @@ def _fit_scatterers(
 
 def _noise(options: dict, signal, scale: float, snr_db: float | None) -> dict:
     """``{"noise": σ}``, the noise's standard deviation per sample in the solver's units
-    (the signal normalised by ``scale``), for the methods that take it (`points`, RIFT)
+    (the signal normalised by ``scale``), for the methods that take it (`points`, RIFT, FISTA)
     and `fit`'s own checks: the user's ``noise`` (checked by `check_options`, in the
     signal's units), else the σ that ``snr_db`` implies, as `synthesize` adds it; ``{}``
     when neither is known."""

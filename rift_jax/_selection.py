@@ -179,7 +179,7 @@ def _choose(
     signal, scale, radar, extent, granularity, known = prepared
     signal = np.asarray(signal) * scale  # in the input's units, as a given `init` field is
     # the candidates fit arrays, which say no noise level: the one `fit` would know is
-    # passed to those that use it (RIFT), as `noise` in these units
+    # passed to those that use it (RIFT, FISTA), as `noise` in these units
     noise = _noise({}, signal, 1.0, known)
     for own in candidates.values():
         check_train_granularity(own, granularity)
@@ -331,7 +331,7 @@ def _score(method, options, signal, viewpoints, kept, held, grid, support, radar
     stop, failure (RIFT's collapse, a divergence, or None) and the messages of the warnings
     that it likely failed (recorded, not raised: the final fit raises its own; given an
     array, the fit knows no noise level, so their judgement assumes none; RIFT's own
-    stopping and collapse check get it as `noise`)."""
+    stopping and collapse check, and FISTA's λ, get it as `noise`)."""
     start = time.perf_counter()
 
     def run():

@@ -134,6 +134,8 @@ def test_zero_signal_warns(small_cube):
         result = rj.fit(zeros, train, radar=radar, extent=2.0, granularity=1.0, progress=False)
     assert not np.any(result.scene.reflectivity) and result.support is None  # none to see
     assert result.stopped.outcome is rj.solvers.Outcome.ZERO_SIGNAL
+    predicted = result.predict(train)  # ρ = 0 predicts nothing (`synthesize` would refuse)
+    assert predicted.signal.shape == zeros.shape and not np.any(predicted.signal)
 
 
 def test_each_method_declares_the_options_its_solver_takes():
@@ -399,6 +401,13 @@ def test_failed_fit_warnings_name_the_cause():
         ("lsmr", {"data_residual": 1.0, "coherence": 0.9}, False, "finer `granularity`"),
         ("rift-n", {"data_residual": 1.3, "coherence": 0.9, "support_leak": 0.1}, True, "INR"),
         ("rift-s", {"data_residual": 0.5, "coherence": 0.6}, False, "smooth-blob"),
+        # ρ = 0: FISTA's λ from the known noise (the leak then reads the whole signal)
+        (
+            "fista",
+            {"data_residual": 1.0, "coherence": 0.0, "noise_lambda": 0.3, "support_leak": 0.9},
+            True,
+            "above their noise",
+        ),  # fmt: skip
     ]
     for method, stats, on_support, cause in cases:
         with pytest.warns(rj.FitWarning, match=cause):
@@ -590,8 +599,9 @@ def test_auto_on_noisy_data_is_the_chosen_methods_own_fit(small_cube):
 
 def test_auto_tells_its_candidates_the_noise_fit_would_know(small_cube, monkeypatch):
     """The candidates fit arrays (four fifths of the views), which say no noise level: a
-    method that uses one (RIFT) gets the σ that ``snr_db`` implies, in the signal's units,
-    as `noise`; a method that does not is given none, and a candidate's own `noise` wins."""
+    method that uses one (RIFT, FISTA) gets the σ that ``snr_db`` implies, in the signal's units,
+    as `noise` (RIFT's and FISTA's way to it are tested in test_stability.py); a method
+    that does not is given none, and a candidate's own `noise` wins."""
     from rift_jax import _selection
 
     radar, scene, train, _ = small_cube

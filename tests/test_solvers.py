@@ -213,6 +213,37 @@ def test_fista_sparsity_and_nonnegativity(problem):
     assert positive.stats["lambda"] > 0
 
 
+def test_fista_keeps_no_point_that_known_noise_could_have_made(problem):
+    """Given the noise's σ, λ is at least max|Aᴴn| for a seeded draw n of that noise (by
+    hand, float64 on the operator's matrix), and the draw has E|n|² = σ². On pure noise
+    the result is then ρ = 0, where FISTA without σ fits the noise; σ = 0 is σ unknown."""
+    from rift_jax._solvers.sparse import _noise_draw
+
+    operator, signal, _ = problem
+    rng = np.random.default_rng(3)
+    sigma = float(np.sqrt(np.mean(np.abs(signal) ** 2)))  # 0 dB
+    noise = (sigma / np.sqrt(2)) * random_complex(rng, *signal.shape)
+    known = solvers.fista(operator, noise, noise=sigma, iterations=30, progress=False)
+    unknown = solvers.fista(operator, noise, iterations=30, progress=False)
+    assert np.all(np.asarray(known.rho) == 0) and np.linalg.norm(unknown.rho) > 0
+    draw = np.asarray(_noise_draw(signal.shape, sigma, seed=0), np.complex128)
+    assert np.mean(np.abs(draw) ** 2) == pytest.approx(sigma**2, rel=0.05)  # 3,840 samples
+    matrix = np.asarray(operator.as_matrix(), np.complex128)
+    by_hand = np.abs(matrix.conj().T @ draw.ravel()).max()
+    assert known.stats["noise_lambda"] == pytest.approx(by_hand, rel=1e-4)
+    # on the scene's own signal: λ is the larger of the two floors, and without σ no floor
+    with_noise = solvers.fista(operator, signal, noise=sigma, iterations=5, progress=False)
+    plain = solvers.fista(operator, signal, iterations=5, progress=False)
+    expected = max(with_noise.stats["noise_lambda"], plain.stats["lambda"])
+    assert with_noise.stats["lambda"] == pytest.approx(expected, rel=1e-6)
+    unknown_zero = solvers.fista(operator, signal, noise=0.0, iterations=5, progress=False)
+    np.testing.assert_array_equal(unknown_zero.rho, plain.rho)
+    assert "noise_lambda" not in plain.stats | unknown_zero.stats
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="`noise`"):
+            solvers.fista(operator, signal, noise=bad, progress=False)
+
+
 def test_realified_operator_transposes_to_the_adjoint(problem, rng):
     """The (Re, Im) map optimistix sees transposes (real inner product) to Aᴴ."""
     operator, signal, _ = problem

@@ -62,7 +62,9 @@ METHODS = {
     "lsmr": Method(lsmr, _LEAST_SQUARES | {"check_every"}),
     "gauss-newton": Method(gauss_newton, _LEAST_SQUARES | {"inner", "damped"}),
     "fista": Method(
-        fista, _LEAST_SQUARES | {"sparsity", "nonnegative", "power_iterations"}, seeded=True
+        fista,
+        _LEAST_SQUARES | {"sparsity", "nonnegative", "power_iterations", "noise"},
+        seeded=True,
     ),
     "rift-n": Method(functools.partial(rift, model="rift-n"), _RIFT, seeded=True, inr=True),
     "rift-s": Method(functools.partial(rift, model="rift-s"), _RIFT, seeded=True, inr=True),
