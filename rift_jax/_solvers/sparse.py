@@ -196,10 +196,18 @@ def _update(solver, pair, state, misfit, t, lam, fn, signal, step_size):
     return _settled((step.params, step.state, misfit, state.t, pair))
 
 
+# `seed`'s stream for the noise draw, apart from every key that `synthesize` (split into
+# two) and the power iteration (the seed's own key) use: with the small counters of a split,
+# `fold_in(key(seed), 1)` is `split(key(seed))[1]`, the very key of `synthesize`'s noise, so
+# that λ followed the data's own noise (found in review)
+_NOISE_STREAM = 0x4E4F4953
+
+
 def _noise_draw(shape, sigma: float, seed: int) -> Complex[Array, "*shape"]:
-    """Complex white noise of σ per sample (E|n|² = σ², each part σ/√2), from ``seed``
-    (its own stream: not the power iteration's start)."""
-    re, im = jax.random.normal(jax.random.fold_in(jax.random.key(seed), 1), (2, *shape))
+    """Complex white noise of σ per sample (E|n|² = σ², each part σ/√2), from ``seed``'s
+    own stream (`_NOISE_STREAM`), independent of the noise `synthesize` adds."""
+    key = jax.random.fold_in(jax.random.key(seed), _NOISE_STREAM)
+    re, im = jax.random.normal(key, (2, *shape))
     return (sigma / np.sqrt(2)) * jax.lax.complex(re, im)
 
 
