@@ -238,7 +238,9 @@ def test_monitor_sees_each_iteration_and_changes_nothing(tiny, method, options):
     assert np.all(seconds >= watched.history.seconds[: len(seen)])
     assert np.all(np.diff(seconds) < 0.5) and seconds[-1] <= watched.seconds
     assert np.all(np.diff(watched.history.seconds) < 0.5)
-    assert watched.seconds < watched.history.seconds[-1] + 0.5
+    # counted, the looks would add 0.5 s each (2 s); the checks after the solver take
+    # ~0.1 s, and 0.5 s on a loaded machine (a fresh clone beside two other jobs)
+    assert watched.seconds < watched.history.seconds[-1] + 0.25 * runs
     assert all(s.shape == watched.scene.shape for _, _, s in seen)
     if method == "kaczmarz":  # the best sweep so far is the one returned (FISTA may still
         # return its last iterate, whose residual is known only after the loop)
