@@ -11,14 +11,9 @@ scores each by how well it predicts the held-out signals, and fits the winner ag
 every viewpoint. Its cost is the candidates' fits on four fifths of the views on top of
 the winner's own fit.
 
-A few held-out views are a noisy judge: at −10 dB from 100 views the two candidates'
-residuals differed by less than 0.00025 (at 0.99-0.998) in four cells, and in all four
-the lower one scored worse on the truth (docs/experiments.md). So the first candidate
-keeps its place unless another predicts the held-out views better by more than `MARGIN`
-standard errors of the paired per-view difference: the one-standard-error rule of
-cross-validation (Hastie, Tibshirani and Friedman, *The Elements of Statistical
-Learning*, 2nd ed., §7.10), with FISTA, convex and the faster, as the candidate kept
-when the evidence does not tell them apart.
+The held-out views are a noisy judge, so the candidates are ranked by the one-standard-error
+rule (`rift_jax._holdout.rank`), with FISTA, convex and the faster, first: it keeps its
+place unless another predicts the held-out views clearly better.
 """
 
 from __future__ import annotations
@@ -40,7 +35,8 @@ from ._fit import (
     check_train_granularity,
     fit,
 )
-from ._geometry import Radar, Viewpoints, spread
+from ._geometry import Radar, Viewpoints
+from ._holdout import paired_t, rank, score, split
 from ._operator import check_inside
 from ._scenes import GridWarning, Scene
 from ._solvers import Diverged, Outcome
@@ -50,40 +46,9 @@ from ._support import estimate_support
 CANDIDATES = ("fista", "rift-n")
 """``"auto"``'s candidates, the two methods that were best in some cells of the stress grid
 (FISTA in 77 of 150, RIFT(N) in 73; no other in any): the first keeps its place unless
-another is clearly better (`MARGIN`), and runs alone where too few viewpoints leave none
-to hold out."""
-HOLDOUT_SHARE = 0.2  # of the training viewpoints, held out to score the candidates ...
-MIN_HOLDOUT = 2  # ... but at least this many
-MIN_TRAINING = 3  # and this many left to fit on: below, the first candidate runs alone
-MARGIN = 1.0  # standard errors by which a candidate must beat an earlier one to rank first
+another is clearly better (`rift_jax._holdout.rank`), and runs alone where too few
+viewpoints leave none to hold out."""
 _OURS = (*FAILED, GridWarning)  # rift_jax's warnings about a fit or its input
-
-
-def holdout_residual(predicted, signal) -> float:
-    """min over a complex gain g of ‖y − g·p‖/‖y‖, √(1 − c²) with c = |⟨y, p⟩|/(‖y‖‖p‖):
-    how much of the held-out signals ``signal`` (y) the prediction ``predicted`` (p)
-    leaves unexplained, whatever its scale (`FitResult.predict` normalises). Noise in y
-    adds the same to every candidate's on average, so it ranks them by the noise-free
-    signals' residual; 1 where p is zero."""
-    return float(np.sqrt(np.sum(holdout_errors(predicted, signal))))
-
-
-def holdout_errors(predicted, signal) -> np.ndarray:
-    """Each held-out viewpoint's share of ``holdout_residual``²: ‖y_v − g·p_v‖²/‖y‖² for
-    the views v along the first axis, at the one gain g best for all of them together.
-    They sum to the residual², so two candidates' per-view differences say how much of
-    their residuals' difference is more than the chance of which views were held out.
-    A zero or non-finite prediction explains nothing: each view keeps its whole share of
-    ‖y‖² (the shares of a zero ``signal``: 1/k each, as for a prediction of nothing)."""
-    p, y = (np.asarray(x, np.complex128) for x in (predicted, signal))
-    p, y = p.reshape(len(p), -1), y.reshape(len(y), -1)
-    power, p_power = np.sum(np.abs(y) ** 2), np.sum(np.abs(p) ** 2)
-    if not power > 0:
-        return np.full(len(y), 1 / len(y))
-    gain = np.vdot(p, y) / p_power if np.isfinite(p_power) and p_power > 0 else 0.0
-    if gain == 0 or not np.isfinite(gain):  # also NaN in p, which a zero gain would keep
-        return np.sum(np.abs(y) ** 2, axis=1) / power
-    return np.sum(np.abs(y - gain * p) ** 2, axis=1) / power
 
 
 def fit_auto(
@@ -191,13 +156,11 @@ def _choose(
     if isinstance(support, str) and support == "auto" and nonzero:
         support = estimate_support(signal, viewpoints, grid, radar=radar)  # once, for all
         estimate["support_seconds"] = time.perf_counter() - start
-    n = len(viewpoints)
-    k = max(MIN_HOLDOUT, round(HOLDOUT_SHARE * n))
     scores: dict[str, dict] = {}
     ranking, held = list(candidates), np.array([], np.int64)
-    if n - k >= MIN_TRAINING and len(candidates) > 1 and nonzero:
-        held = spread(n, k)
-        kept = np.setdiff1d(np.arange(n), held)
+    views = split(len(viewpoints))
+    if views is not None and len(candidates) > 1 and nonzero:
+        kept, held = views
         for method in candidates:
             options = candidates[method]
             if "noise" in METHODS[method].options:
@@ -206,9 +169,9 @@ def _choose(
                 method, options, signal, viewpoints, kept, held, grid, support, radar, seed,
                 progress,
             )  # fmt: skip
-        ranking = _rank(scores)
+        ranking = rank(scores)
         first, *later = candidates
-        for method in later:  # how clearly each beat the first (> `MARGIN`: it did)
+        for method in later:  # how clearly each beat the first (> MARGIN: it did)
             scores[method]["paired_t"] = paired_t(scores[method], scores[first])
     rejected, attempts = {}, []
     for method in ranking:  # a final fit that fails gives way to the next candidate
@@ -241,48 +204,6 @@ def _choose(
         failure.result = result
         raise failure
     return result
-
-
-def _rank(scores: dict[str, dict]) -> list[str]:
-    """The candidates in the order their final fits are tried: first the one that predicted
-    the held-out views best by a clear margin (each, in the candidates' order, takes the
-    lead only if `_clearly_better` than the one holding it), then the others by held-out
-    residual, then every one that collapsed or diverged on the split."""
-    ok = [m for m in scores if scores[m]["failure"] is None]
-    failed = [m for m in scores if scores[m]["failure"] is not None]
-
-    def residual(method: str) -> float:
-        return scores[method]["holdout_residual"]
-
-    if not ok:
-        return sorted(failed, key=residual)
-    lead = ok[0]
-    for method in ok[1:]:
-        if _clearly_better(scores[method], scores[lead]):
-            lead = method
-    rest = sorted((m for m in ok if m != lead), key=residual)
-    return [lead, *rest, *sorted(failed, key=residual)]
-
-
-def _clearly_better(score: dict, than: dict) -> bool:
-    """Whether ``score``'s held-out residual² is below ``than``'s by more than `MARGIN`
-    standard errors (`paired_t`). The views' shares share one gain and neighbouring views
-    look alike, so the error is if anything understated, and the rule errs towards a
-    change. From 2 held-out views it asks for a lower share on both."""
-    return paired_t(score, than) > MARGIN
-
-
-def paired_t(score: dict, than: dict) -> float:
-    """How many standard errors ``score``'s held-out residual² lies below ``than``'s: the
-    sum of their per-view differences (`holdout_errors`; paired: the same views, the same
-    noise) over its standard error, √k times the differences' standard deviation for k
-    views. ±inf where every view differs by the same amount, 0 where none differs."""
-    difference = np.asarray(than["holdout_errors"]) - np.asarray(score["holdout_errors"])
-    total = float(np.sum(difference))
-    error = np.sqrt(len(difference)) * np.std(difference, ddof=1) if len(difference) > 1 else 0
-    if error > 0:
-        return total / float(error)
-    return float(np.sign(total) * np.inf) if total else 0.0
 
 
 def _final(method, data, viewpoints, support, seed, progress, radar, given, candidates):
@@ -327,8 +248,9 @@ def _check_candidates(candidates) -> dict[str, dict]:
 
 def _score(method, options, signal, viewpoints, kept, held, grid, support, radar, seed, progress):
     """One candidate fitted on the ``kept`` viewpoints and scored on the ``held`` ones: its
-    held-out residual and each held-out view's share of it (`holdout_errors`), seconds,
-    stop, failure (RIFT's collapse, a divergence, or None) and the messages of the warnings
+    held-out `score` (residual, each held-out view's share of it, failure: RIFT's collapse,
+    a divergence, or None), seconds,
+    stop, and the messages of the warnings
     that it likely failed (recorded, not raised: the final fit raises its own; given an
     array, the fit knows no noise level, so their judgement assumes none; RIFT's own
     stopping and collapse check, and FISTA's λ, get it as `noise`)."""
@@ -345,15 +267,12 @@ def _score(method, options, signal, viewpoints, kept, held, grid, support, radar
             return error.result
 
     result, caught = recorded_failures(run)
-    errors = holdout_errors(result.predict(viewpoints.subset(held)).signal, signal[held])
     failure = result.stats.get("collapse")
     if result.stopped.outcome is Outcome.DIVERGED:
         failure = f"diverged ({result.stopped})"
-    return {
-        "holdout_residual": float(np.sqrt(np.sum(errors))),
-        "holdout_errors": errors.tolist(),  # per held-out view, for `_clearly_better`
+    predicted = result.predict(viewpoints.subset(held)).signal
+    return score(predicted, signal[held], failure) | {
         "seconds": time.perf_counter() - start,
         "stopped": result.stopped.outcome.value,
-        "failure": failure,
         "warnings": [str(w.message) for w in caught],
     }

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import rift_jax as rj
-from rift_jax import _selection
+from rift_jax import _holdout, _selection
 from rift_jax._fit import _at_points
 from rift_jax._geometry import spread
-from rift_jax._selection import holdout_residual
+from rift_jax._holdout import holdout_residual
 from rift_jax._solvers.methods import METHODS
 from rift_jax._support import mask_at
 
@@ -474,24 +474,24 @@ def test_auto_keeps_the_first_candidate_unless_another_is_clearly_better():
         return base - (t * deviation / np.sqrt(20) + deviation * z)
 
     for t, ranked in ((0.9, ["fista", "rift-n"]), (1.1, ["rift-n", "fista"])):
-        assert _selection.paired_t(score(lower_by(t)), score(base)) == pytest.approx(t)
+        assert _holdout.paired_t(score(lower_by(t)), score(base)) == pytest.approx(t)
         assert score(lower_by(t))["holdout_residual"] < score(base)["holdout_residual"]
-        assert _selection._rank({"fista": score(base), "rift-n": score(lower_by(t))}) == ranked
+        assert _holdout.rank({"fista": score(base), "rift-n": score(lower_by(t))}) == ranked
     noisy = lower_by(0.9)  # lower, but within the noise
     clear = base - 5e-4  # lower on every view
-    assert _selection._rank({"fista": score(base), "rift-n": score(clear)}) == ["rift-n", "fista"]
+    assert _holdout.rank({"fista": score(base), "rift-n": score(clear)}) == ["rift-n", "fista"]
     # the lead passes on in the candidates' order; the rest follow by residual, failures last
     scores = {"a": score(base), "b": score(base - 1e-3, "collapsed"), "c": score(noisy),
               "d": score(clear)}  # fmt: skip
-    assert _selection._rank(scores) == ["d", "c", "a", "b"]
+    assert _holdout.rank(scores) == ["d", "c", "a", "b"]
     # a per-view tie keeps the first; the same gain on every view is infinitely clear
-    assert _selection._rank({"x": score(base), "y": score(base)}) == ["x", "y"]
-    assert _selection.paired_t(score(base), score(base)) == 0.0
-    assert _selection.paired_t(score(clear), score(base)) == np.inf
+    assert _holdout.rank({"x": score(base), "y": score(base)}) == ["x", "y"]
+    assert _holdout.paired_t(score(base), score(base)) == 0.0
+    assert _holdout.paired_t(score(clear), score(base)) == np.inf
     # the errors sum to the residual²
     rho = rng.normal(size=(4, 3, 2)) + 1j * rng.normal(size=(4, 3, 2))
     y = rho + 0.3 * (rng.normal(size=rho.shape) + 1j * rng.normal(size=rho.shape))
-    errors = _selection.holdout_errors(2j * rho, y)
+    errors = _holdout.holdout_errors(2j * rho, y)
     assert errors.shape == (4,) and np.sum(errors) == pytest.approx(holdout_residual(rho, y) ** 2)
 
 
@@ -564,7 +564,7 @@ def test_auto_passes_over_a_candidate_that_collapsed(small_cube, monkeypatch):
     # in the candidates' order: the collapsed RIFT scores best, on every held-out view
     residuals = iter([0.1, 0.5])
     monkeypatch.setattr(
-        _selection, "holdout_errors", lambda _, y: np.full(len(y), next(residuals) ** 2 / len(y))
+        _holdout, "holdout_errors", lambda _, y: np.full(len(y), next(residuals) ** 2 / len(y))
     )
     scored = rj.fit(scene, train, **options)
     selection = scored.stats["selection"]
@@ -650,7 +650,7 @@ def test_the_default_method_chooses_between_fista_and_rift(small_cube):
     result = rj.fit(scene, train, radar=radar, progress=False)
     selection = result.stats["selection"]
     assert selection["candidates"] == ["fista", "rift-n"]
-    assert result.method == selection["chosen"] == _selection._rank(selection["scores"])[0]
+    assert result.method == selection["chosen"] == _holdout.rank(selection["scores"])[0]
     direct = rj.fit(scene, train, radar=radar, method=result.method, support=result.support,
                     progress=False)  # fmt: skip
     np.testing.assert_array_equal(result.scene.reflectivity, direct.scene.reflectivity)
