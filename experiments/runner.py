@@ -627,10 +627,13 @@ def execute(
             "collapse": result.stats.get("collapse"),
             # what `fit`'s smooth-blob warning read, so that a study can re-judge it later
             "coherence": result.stats.get("coherence"),
+            "sparsity": result.stats.get("sparsity"),  # FISTA's λ over max|Aᴴy|, as it ran
             "warnings": warned,  # where `fit` judged the run a likely failure
         }
         if shared is not None:  # estimated once for every run on the same data
             row |= {"support_seconds": shared.seconds, "support_reused": shared.reused}
+        if "sparsity_path" in result.stats:  # FISTA's sparsity="auto": what it chose from
+            row["sparsity_path"] = result.stats["sparsity_path"]
         if "selection" in result.stats:  # method "auto": what it chose, and why
             row["selection"] = result.stats["selection"]
         results["rows"].append(row)

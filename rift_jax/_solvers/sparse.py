@@ -15,7 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex
 
-from .._operator import GRTOperator
+from .. import _holdout
+from .._operator import GRT, GRTOperator
 from .._precision import exact_jit
 from .._sharding import replicated
 from .._validation import check_positive_int, is_finite_nonnegative
@@ -26,13 +27,21 @@ with warnings.catch_warnings():
     warnings.filterwarnings("ignore", message=".*no longer maintained", category=DeprecationWarning)
     import jaxopt
 
+SPARSITIES = (0.5, 0.3, 0.2, 0.1, 0.05, 0.02)
+"""The λ path of ``sparsity="auto"`` (λ relative to max|Aᴴy|), sparsest first: the first
+keeps its place unless a denser one predicts the held-out views clearly better
+(`rift_jax._holdout.rank`). On the stress grid's noise-free data the held-out residual is
+lowest where the image is best, at 0.05-0.3 by scene and views (docs/solvers.md)."""
+UNSPLIT = 0.05  # ``sparsity="auto"``'s λ where too few views leave none to hold out
+_PAST_BEST = 2  # the path stops after this many λ in a row predict worse than the best
+
 
 def fista(
     operator: GRTOperator,
     signal: Complex[Array, "n_views n_freq n_tx n_rx"],
     *,
     iterations: int = 100,
-    sparsity: float = 0.05,
+    sparsity: float | str = "auto",
     nonnegative: bool = False,
     power_iterations: int = 10,
     tol: float = 1e-3,
@@ -48,6 +57,13 @@ def fista(
     The prox of λ‖ρ‖₁ for complex ρ shrinks each magnitude and keeps the phase,
     ρ·max(0, 1 − λt/|ρ|) (t the step); with ``nonnegative=True`` ρ is kept real and
     max(0, Re ρ − λt). ``λ = sparsity · max|Aᴴy|``: at ``sparsity ≥ 1`` the solution is 0.
+    With ``sparsity="auto"`` (the default) λ is chosen on held-out viewpoints: a fifth of
+    the views (evenly spread) are held out, the path `SPARSITIES` is solved on the rest
+    (sparsest first, each started from the one before, until two in a row predict worse
+    than the best so far), and the λ whose image predicts the held-out signals best (at
+    their best complex gain, by the one-standard-error rule of `rift_jax._holdout.rank`)
+    is solved again on every view, from the start: the result is
+    ``fista(sparsity=stats["sparsity"])``'s. With too few views to hold any out, `UNSPLIT`.
     Where the noise is known (``noise``), λ is at least max|Aᴴn| for a draw n of it: the
     smallest λ at which noise alone reconstructs to ρ = 0 (then 0 is optimal: |Aᴴn| ≤ λ
     everywhere), so that the prior keeps no point that the noise could have made. On the
@@ -59,13 +75,14 @@ def fista(
 
     **What an iteration is:** one FISTA step: a forward and an adjoint pass over all
     viewpoints. Estimating L costs ``power_iterations`` more, and λ one adjoint pass (two
-    with ``noise``).
+    with ``noise``). ``sparsity="auto"`` adds the path's solves on four fifths of the views
+    (each up to ``iterations`` steps; the sparser ones stop sooner) before the final one.
 
     **Arguments:**
 
     - `operator`, `signal`, `x0`, `progress`, `monitor`: as `kaczmarz`.
     - `iterations`: FISTA steps.
-    - `sparsity`: λ relative to max|Aᴴy|, in [0, 1).
+    - `sparsity`: λ relative to max|Aᴴy|, in [0, 1), or "auto": chosen on held-out views.
     - `nonnegative`: constrain ρ to real, non-negative values.
     - `power_iterations`: power iterations for ‖A‖².
     - `tol`: stop when the residual stagnates (`Patience.from_tol`); 0 runs every step.
@@ -79,30 +96,96 @@ def fista(
     evaluates the residual at its extrapolated point y_k = (1 + m)ρ_k − mρ_{k−1}, and the
     residual is affine in ρ, so r(ρ_k) = (r(y_k) + m r(ρ_{k−1}))/(1 + m). Iterate k's
     residual is known once step k + 1 has run; the last iterate's costs one forward pass.
-    ``stats``: ``lambda`` (λ), ``lipschitz`` (1.1·L), ``nonnegative``, and with ``noise``
-    ``noise_lambda`` (max|Aᴴn| of its draw).
+    ``stats``: ``lambda`` (λ), ``sparsity``, ``lipschitz`` (1.1·L), ``nonnegative``, with
+    ``noise`` ``noise_lambda`` (max|Aᴴn| of its draw), and with ``sparsity="auto"`` and
+    enough views ``sparsity_path``: the held-out viewpoints (``views``) and, for each
+    sparsity tried on the others in the path's order, its ``lambda``, `rift_jax._holdout.score`
+    (``holdout_residual``, ``holdout_errors``) and ``iterations`` (``scores``). Where the
+    noise's floor is above some of the path's λ, they are tried once, as sparsity 0: λ at
+    the floor.
     """
     where = "fista"
     signal, x = check_problem(where, operator, signal, x0, iterations)
     check_positive_int(f"{where}: `power_iterations`", power_iterations)
-    if not 0 <= sparsity < 1:
-        raise ValueError(f"{where}: `sparsity` must be in [0, 1), got {sparsity!r}.")
+    if isinstance(sparsity, str):
+        if sparsity != "auto":
+            raise ValueError(f"{where}: `sparsity` must be in [0, 1) or 'auto', got {sparsity!r}.")
+    elif not 0 <= sparsity < 1:
+        raise ValueError(f"{where}: `sparsity` must be in [0, 1) or 'auto', got {sparsity!r}.")
     if noise is not None and not is_finite_nonnegative(noise):
         raise ValueError(f"{where}: `noise` must be a finite σ ≥ 0 or None, got {noise!r}.")
     if (solution := zero_signal(where, signal, x)) is not None:
         return solution
     fn = operator.fn
     lipschitz = 1.1 * _power_norm(fn, power_iterations, seed)
+    solve = functools.partial(
+        _minimize, lipschitz=lipschitz, nonnegative=nonnegative, iterations=iterations,
+        tol=tol, progress=progress,
+    )  # fmt: skip
+    path = {}
+    if sparsity == "auto":
+        sparsity, path = _choose(fn, signal, x, noise, seed, solve)
+    largest, noise_lam = _scales(fn, signal, noise, seed)
+    lam = max(sparsity * largest, noise_lam)
+    rho, history, stopped, stats = solve(fn, signal, x, lam, monitor=monitor, desc=where)
+    stats |= {"lambda": lam, "sparsity": sparsity, "lipschitz": lipschitz}
+    stats["nonnegative"] = nonnegative
+    if noise:  # λ's floor from the noise: max|Aᴴn| of its draw
+        stats["noise_lambda"] = noise_lam
+    if path:
+        stats["sparsity_path"] = path
+    return Solution(rho, history, stopped, stats)
+
+
+def _scales(fn: GRT, signal, noise: float | None, seed: int) -> tuple[float, float]:
+    """(max|Aᴴy|, the noise's floor on λ: max|Aᴴn| for a draw n of it, 0 without it)."""
+    largest = float(_max_backprojection(fn, signal))
+    if not noise:
+        return largest, 0.0
+    return largest, float(_max_backprojection(fn, _noise_draw(signal.shape, noise, seed)))
+
+
+def _choose(fn: GRT, signal, x, noise, seed, solve) -> tuple[float, dict]:
+    """``sparsity="auto"``: (the sparsity chosen, the path's record; see `fista`). Where the
+    noise's floor is above some of `SPARSITIES`' λ, they are one candidate, 0 (λ at the
+    floor), which the final solve turns into its own data's floor."""
+    views = _holdout.split(fn.n_views)
+    if views is None:
+        return UNSPLIT, {}
+    kept, held = views
+    fit_on, fit_signal = fn.subset(kept), signal[kept]
+    largest, floor = _scales(fit_on, fit_signal, noise, seed)
+    candidates = [s for s in SPARSITIES if s * largest > floor]
+    if len(candidates) < len(SPARSITIES):
+        candidates.append(0.0)
+    judge_on, held_signal = fn.subset(held), np.asarray(signal[held])
+    scores, worse = {}, 0
+    for k, sparsity in enumerate(candidates):
+        desc = f"fista, λ {k + 1} of {len(candidates)}, held-out views"
+        lam = max(sparsity * largest, floor)
+        x, history, _, _ = solve(fit_on, fit_signal, x, lam, desc=desc)  # denser from here
+        scores[sparsity] = _holdout.score(judge_on(x), held_signal, None) | {
+            "lambda": lam, "iterations": len(history.residual) - 1,
+        }  # fmt: skip
+        best = min(r["holdout_residual"] for r in scores.values())
+        worse = worse + 1 if scores[sparsity]["holdout_residual"] > best else 0
+        if worse == _PAST_BEST:  # past the best: the denser λ, the dearer (and worse) solves
+            break
+    record = {"views": held.tolist(), "scores": {str(s): v for s, v in scores.items()}}
+    return _holdout.rank(scores)[0], record
+
+
+def _minimize(
+    fn: GRT, signal, x, lam: float, *, lipschitz, nonnegative, iterations, tol, progress,
+    monitor=None, desc: str,
+):  # fmt: skip
+    """FISTA for ½‖Aρ − y‖² + λ‖ρ‖₁ on ``fn`` and ``signal`` from ``x``: (ρ, history, stop,
+    stats)."""
     # traced scalars, not Python floats, so that a new signal or operator compiles no step
     # again. jaxopt holds its step as a static setting, so it steps by 1 on the objective
     # scaled by t = 1/L and prox'es tλ‖·‖₁: the same iterates, x − 1·(t∇f) and a shrink by tλ
     step_size = jnp.float32(1.0 / lipschitz)
-    lam = sparsity * _max_backprojection(fn, signal)
-    noise_lam = 0.0
-    if noise:  # no point that the noise alone would put above λ
-        noise_lam = float(_max_backprojection(fn, _noise_draw(signal.shape, noise, seed)))
-        lam = jnp.maximum(lam, jnp.float32(noise_lam))
-    lam = step_size * lam
+    lam = step_size * jnp.float32(lam)
     norm = jnp.linalg.norm(signal)
     solver = _solver(nonnegative)
     pair = as_pair(x)
@@ -122,7 +205,7 @@ def fista(
         until=Patience.from_tol(tol),
         progress=progress,
         monitor=monitor,
-        desc=where,
+        desc=desc,
         image=lambda carry: as_complex(carry[4]),
         start_measure=float("inf"),  # the start's residual is the first step's record
         hint="More `power_iterations` estimate the step 1/L more safely.",
@@ -133,11 +216,7 @@ def fista(
     if residual < history.residual.min():
         rho, stats = final, {"best": len(history)}
     seconds = np.append(history.seconds, history.seconds[-1] + time.perf_counter() - checked)
-    history = History(np.append(history.residual, residual), seconds)
-    stats |= {"lambda": float(lam / step_size), "lipschitz": lipschitz, "nonnegative": nonnegative}
-    if noise:  # λ's floor from the noise: max|Aᴴn| of its draw
-        stats["noise_lambda"] = noise_lam
-    return Solution(rho, history, stopped, stats)
+    return rho, History(np.append(history.residual, residual), seconds), stopped, stats
 
 
 @functools.cache
