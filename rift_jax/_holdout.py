@@ -7,10 +7,10 @@ scored at its best complex gain (a reconstruction's scale is not the data's). Tw
 use it: ``fit(method="auto")``, which picks a method (`rift_jax._selection`), and FISTA's
 ``sparsity="auto"``, which picks its λ (`rift_jax._solvers.sparse`).
 
-A few held-out views are a noisy judge: at −10 dB from 100 views two candidates' residuals
+A few held-out views are a noisy judge: at −10 dB from 100 views two methods' residuals
 differed by less than 0.00025 (at 0.99-0.998) in four cells, and in all four the lower one
-scored worse on the truth (docs/experiments.md). So candidates are ranked by the
-one-standard-error rule of cross-validation (Hastie, Tibshirani and Friedman, *The
+scored worse on the truth (docs/experiments.md). So `rank` orders a choice's candidates
+by the one-standard-error rule of cross-validation (Hastie, Tibshirani and Friedman, *The
 Elements of Statistical Learning*, 2nd ed., §7.10): the first keeps its place unless
 another predicts the held-out views better by more than `MARGIN` standard errors of the
 paired per-view difference. The caller lists the candidate to keep when the evidence does
