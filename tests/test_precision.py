@@ -218,10 +218,12 @@ METHODS = {
 def test_what_each_solver_compiles(compiled, caplog, method):
     """A real run of each solver, on a problem size no other test uses (so that it compiles
     here rather than hitting a cache): every product in every module XLA compiled for it
-    asks for full precision, and its iteration compiled once (a first iterate of another
-    structure or sharding than the next ones' once compiled Kaczmarz's, FISTA's and
-    Gauss-Newton's step two or three times). A second run on a new signal compiles nothing
-    more; but Gauss-Newton's step, which compiles once per run (see
+    asks for full precision, and its iteration compiled once per problem shape (FISTA's
+    twice: on the held-out λ path's views, whatever the path's length, then on every
+    view; a first iterate of another structure or sharding than the next ones' once
+    compiled Kaczmarz's, FISTA's and Gauss-Newton's step two or three times). A second
+    run on a new signal compiles nothing more; but Gauss-Newton's step, which compiles
+    once per run (see
     `rift_jax._solvers.nonlinear`), and with `tol=0` every step runs. The GRT is compiled
     into the iteration and the operator's own products only, never into a diagnostic's
     program of its own."""
@@ -241,7 +243,8 @@ def test_what_each_solver_compiles(compiled, caplog, method):
     bad = [line for line in found if "precision = [HIGHEST, HIGHEST]" not in line]
     assert not bad, f"{method}: {len(bad)} of {len(found)} products: {bad[:2]}"
     count = sum(m.startswith(f"Compiling jit({step})") for m in first)
-    assert count == 1, f"{method} compiled {step} {count} times in one run"
+    shapes = 2 if method == "fista" else 1  # FISTA's λ path runs on 3 of the 5 views first
+    assert count == shapes, f"{method} compiled {step} {count} times in one run"
     # the GRT is compiled into the iteration and the operator's own products only: a
     # diagnostic jitted around the operator compiles the whole GRT again (2-5 s each)
     allowed = {step, "render", "__call", "_signals", "adjoint"}  # render: the INR's layers
