@@ -293,7 +293,8 @@ def test_fistas_held_out_lambda_beats_the_fixed_one_on_two_grids(small_cube):
 
 def test_fistas_path_tries_the_lambdas_under_the_noise_floor_once(problem):
     """Where the noise's floor on λ is above some of the path's λ, those are one candidate,
-    sparsity 0 (λ at the floor, tried last); chosen, the final λ is the whole data's floor."""
+    sparsity 0 (λ at the floor, tried last); chosen, the final λ is the whole data's floor.
+    Above all of them, no path is solved."""
     from rift_jax._solvers.sparse import _noise_draw
 
     operator, signal, _ = problem
@@ -308,6 +309,12 @@ def test_fistas_path_tries_the_lambdas_under_the_noise_floor_once(problem):
     assert all(v["lambda"] > floor for k, v in scores.items() if k != "0.0")
     assert result.stats["sparsity"] == 0.0  # here the floor predicts the held-out views best
     assert result.stats["lambda"] == result.stats["noise_lambda"]
+    # a floor above every λ of the path leaves nothing to choose: no path is solved
+    louder = 30 * sigma
+    drowned = signal + np.asarray(_noise_draw(signal.shape, louder, seed=5))
+    alone = solvers.fista(operator, drowned, noise=louder, iterations=5, progress=False)
+    assert alone.stats["sparsity"] == 0.0 and "sparsity_path" not in alone.stats
+    assert alone.stats["lambda"] == alone.stats["noise_lambda"]
 
 
 def test_realified_operator_transposes_to_the_adjoint(problem, rng):

@@ -101,7 +101,7 @@ def fista(
     sparsity tried on the others in the path's order, its ``lambda``, `rift_jax._holdout.score`
     (``holdout_residual``, ``holdout_errors``) and ``iterations`` (``scores``). Where the
     noise's floor is above some of the path's λ, they are tried once, as sparsity 0: λ at
-    the floor.
+    the floor (above all of them, nothing is tried, and sparsity is 0).
     """
     where = "fista"
     signal, x = check_problem(where, operator, signal, x0, iterations)
@@ -157,13 +157,15 @@ def _choose(fn: GRT, signal, x, noise, seed, solve) -> tuple[float, dict]:
     candidates = [s for s in SPARSITIES if s * largest > floor]
     if len(candidates) < len(SPARSITIES):
         candidates.append(0.0)
+    if len(candidates) == 1:  # the floor is above every λ of the path: nothing to choose
+        return candidates[0], {}
     judge_on, held_signal = fn.subset(held), np.asarray(signal[held])
     scores, worse = {}, 0
     for k, sparsity in enumerate(candidates):
         desc = f"fista, λ {k + 1} of {len(candidates)}, held-out views"
         lam = max(sparsity * largest, floor)
         x, history, _, _ = solve(fit_on, fit_signal, x, lam, desc=desc)  # denser from here
-        scores[sparsity] = _holdout.score(judge_on(x), held_signal, None) | {
+        scores[sparsity] = _holdout.score(judge_on(x), held_signal) | {
             "lambda": lam, "iterations": len(history.residual) - 1,
         }  # fmt: skip
         best = min(r["holdout_residual"] for r in scores.values())
