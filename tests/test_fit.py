@@ -616,7 +616,7 @@ def test_auto_tells_its_candidates_the_noise_fit_would_know(small_cube, monkeypa
 
     monkeypatch.setattr(_selection, "_score", scored)
     candidates = {"lsmr": AUTO_CANDIDATES["lsmr"], "rift-n": {"epochs": 1}}
-    noisy = dict(radar=radar, snr_db=0.0, seed=3, progress=False)
+    noisy = dict(radar=radar, method="auto", snr_db=0.0, seed=3, progress=False)
     assert rj.fit(scene, train, candidates=candidates, **noisy).method == "lsmr"
     data = rj.synthesize(scene, train, radar, snr_db=0.0, seed=3)
     power = np.mean(np.abs(np.asarray(data.signal) * data.scale) ** 2)
@@ -642,18 +642,22 @@ def test_auto_refuses_what_it_cannot_honour(small_cube):
         rj.fit(scene, train, candidates={"lsmr": {"relaxation": 1.0}}, **auto)
 
 
-def test_the_default_method_chooses_between_fista_and_rift(small_cube):
-    """`fit(scene, viewpoints)` is ``method="auto"`` over FISTA and RIFT(N), each at its
-    defaults: FISTA unless RIFT(N) predicts the held-out views clearly better (`_rank`),
-    and the result is that method's own fit on every viewpoint, bit for bit."""
+def test_the_default_method_is_fista_with_its_lambda_chosen_on_held_out_views(small_cube):
+    """`fit(scene, viewpoints)` is FISTA at its defaults (λ chosen on held-out views), and
+    its result is that of the λ it chose, bit for bit; ``method="auto"`` still chooses
+    between FISTA and RIFT(N) when asked."""
     radar, scene, train, _ = small_cube
     result = rj.fit(scene, train, radar=radar, progress=False)
-    selection = result.stats["selection"]
-    assert selection["candidates"] == ["fista", "rift-n"]
-    assert result.method == selection["chosen"] == _holdout.rank(selection["scores"])[0]
-    direct = rj.fit(scene, train, radar=radar, method=result.method, support=result.support,
-                    progress=False)  # fmt: skip
+    assert result.method == "fista" and "sparsity_path" in result.stats
+    chosen = result.stats["sparsity"]
+    direct = rj.fit(scene, train, radar=radar, method="fista", sparsity=chosen,
+                    support=result.support, progress=False)  # fmt: skip
     np.testing.assert_array_equal(result.scene.reflectivity, direct.scene.reflectivity)
+    assert "sparsity_path" not in direct.stats
+    auto = rj.fit(scene, train, radar=radar, method="auto", progress=False)
+    selection = auto.stats["selection"]
+    assert selection["candidates"] == ["fista", "rift-n"]
+    assert auto.method == selection["chosen"] == _holdout.rank(selection["scores"])[0]
 
 
 def test_auto_says_each_warning_once_at_the_callers_line(small_cube, monkeypatch):
@@ -661,7 +665,8 @@ def test_auto_says_each_warning_once_at_the_callers_line(small_cube, monkeypatch
     not once per fit, and at the line that called `fit`; a filter that makes it an error
     stops the call before any fit, as it stops a single method's `fit`."""
     radar, scene, train, _ = small_cube
-    options = dict(radar=radar, granularity=0.8, candidates=AUTO_CANDIDATES, progress=False)
+    options = dict(radar=radar, method="auto", granularity=0.8, candidates=AUTO_CANDIDATES,
+                   progress=False)  # fmt: skip
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         rj.fit(scene, train, **options)
@@ -702,7 +707,7 @@ def test_auto_keeps_its_warnings_and_its_errors_when_a_fit_raises(small_cube, mo
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         with pytest.raises(ValueError, match="stand-in error") as info:
-            rj.fit(scene, train, radar=radar, progress=False)
+            rj.fit(scene, train, radar=radar, method="auto", progress=False)
     assert any("stand-in warning" in note for note in info.value.__notes__)
 
 
