@@ -1,6 +1,7 @@
 """What FISTA's λ chosen on held-out views costs, and what it buys, against the fixed λ.
 
     python -m benchmarks.fista_lambda [--scenes cube,random-0] [--views 30,100] [--repeats 3]
+                                      [--out results/fista_lambda.json]
 
 At the stress grid's default scale (±4.8 m, forward 0.4 m / inverse 0.8 m, 16 frequencies,
 8 × 8 antennas, 20 test views, seed 0, noise-free), on one support per cell (estimated
@@ -8,7 +9,7 @@ once, outside the timing, as `fit`'s ``support="auto"`` would), it fits FISTA wi
 fixed ``sparsity=0.05`` and with ``sparsity="auto"`` (the default), each compiled first
 and timed as the median of ``--repeats`` fits, and prints both beside each other with
 their m-SSIM, m-COS and t-IoU, the sparsity chosen, the ratio of their times, and the
-machine's matmul rate.
+machine's matmul rate, and writes the rows and the rate to ``--out`` (JSON, atomically).
 """
 
 from __future__ import annotations
@@ -17,12 +18,12 @@ import argparse
 import statistics
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 
 import rift_jax as rj
-from experiments.runner import build_scene, draw
-from rift_jax._support import estimate_support
+from experiments.runner import build_scene, draw, write_json
 
 from ._timing import complex_matmul_rate
 
@@ -35,10 +36,12 @@ def main(argv=None) -> list[dict]:
     parser.add_argument("--scenes", default="cube,random-0")
     parser.add_argument("--views", default="30,100")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", type=Path, default=Path("results/fista_lambda.json"))
     args = parser.parse_args(argv)
     radar = rj.Radar(n_frequencies=16, n_tx=8, n_rx=8)
     grid = rj.Scene.empty(EXTENT, INVERSE)
-    print(f"this machine's complex64 matmul (1024³): {complex_matmul_rate():.1f} G/s")
+    rate = complex_matmul_rate()
+    print(f"this machine's complex64 matmul (1024³): {rate:.1f} G/s")
     print("| scene | views | λ | sparsity | m-SSIM | m-COS | t-IoU | median s | × fixed |")
     print("|---|---|---|---|---|---|---|---|---|")
     rows = []
@@ -48,7 +51,7 @@ def main(argv=None) -> list[dict]:
             train, test = draw(rj.Viewpoints.grid(), n_views, 20, 0)
             data = rj.synthesize(scene, train, radar)
             signal = np.asarray(data.signal) * data.scale
-            support = estimate_support(signal, train, grid, radar=radar)
+            support = rj.estimate_support(signal, train, grid, radar=radar)
             seconds = {}
             for label, sparsity in SPARSITIES.items():
                 fit = dict(radar=radar, extent=EXTENT, granularity=INVERSE, method="fista",
@@ -80,6 +83,9 @@ def main(argv=None) -> list[dict]:
                 print(f"| {name} | {n_views} | {label} | {row['sparsity']:g} | "
                       f"{row['m_ssim']:.3f} | {row['m_cos']:.3f} | {row['t_iou']:.3f} | "
                       f"{row['seconds']:.2f} | {ratio:.1f} |", flush=True)  # fmt: skip
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    write_json(args.out, {"matmul_G_per_s": rate, "repeats": args.repeats, "rows": rows})
+    print(f"wrote {args.out}")
     return rows
 
 

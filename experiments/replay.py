@@ -19,7 +19,8 @@ sets today's default, complex MSE, beside them:
     python -m experiments.replay --method rift-n --options '{}' \\
         --cells cube:30:none cube:30:0 parking_lot:100:none ...
 
-``--method auto`` runs `fit`'s default, which the grid does not run, in the cells with
+``--method auto`` runs `fit`'s choice between FISTA and RIFT(N) (its default until FISTA
+chose its λ on held-out views), which the grid does not run, in the cells with
 `fit`'s defaults (``--options`` added to them; at the quick scale each candidate with the
 scale's budget), judged with the grid's five methods there: how docs/experiments.md
 measured it.

@@ -51,7 +51,8 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument(
         "--method",
         default=None,
-        help="auto (default: fista or rift-n, chosen on held-out views), fista, rift-n, ...",
+        help="fista (default: its λ chosen on held-out views), auto (fista or rift-n, chosen "
+        "on held-out views), rift-n, ...",
     )
     fit.add_argument(
         "--support",
@@ -65,7 +66,7 @@ def _parser() -> argparse.ArgumentParser:
         default=[],
         metavar="NAME=VALUE",
         help="a method option, e.g. --option iterations=200 (VALUE read as JSON, else text); "
-        "the default method, auto, takes none but candidates={...}: name --method to pass one",
+        "method auto takes none but candidates={...}",
     )
     fit.add_argument("--public", action="store_true", help="DATA is in the authors' NPZ layout")
     fit.add_argument("--seed", type=int, default=0)

@@ -317,9 +317,10 @@ def fit(
     - `time_limit`: seconds on that clock: the run ends after the iteration in which the
       clock passes it (`Outcome.STOPPED`), with the best reconstruction so far. An
       iteration is a sweep, a check or an epoch, so a run may overshoot by up to one.
-      FISTA's λ path (its ``sparsity="auto"``) runs before the watched solve: its time
-      counts on the clock but is not cut short, and a limit it uses up leaves the final
-      solve one step; name a ``sparsity`` to spend a tight budget on one solve.
+      FISTA's λ path (its ``sparsity="auto"``) is watched too: a limit passed there ends
+      the path, and the final solve, one step, starts from the best λ's image so far
+      (fitted on four fifths of the views); name a ``sparsity`` to spend a tight budget
+      on one solve. A `monitor` sees the path's solves as well, each from iteration 1.
     - `**options`: passed to the solver (``iterations``, ``tol``, ``relaxation``, ...; for
       RIFT ``recipe``, ``epochs``, ``loss``, ``prune``, ...; see `rift_jax.solvers`).
       Every grid method also takes ``train_granularity``: it works on the points of the

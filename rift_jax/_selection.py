@@ -1,15 +1,18 @@
 """``fit(method="auto")``: choose a method by how well it predicts viewpoints it never saw.
 
-No one method is best everywhere: on the stress grid at every method's defaults FISTA was
-within 0.05 m-SSIM of the best method in 103 of 150 cells and RIFT(N) in 105, and each
-lost by far where the other won (docs/solvers.md, "Which method"). A cell's unseen test
-views told them apart: picking the method whose predicted test signals had the lower phase
-error would have been within 0.05 of the best in 139. A user has no test views, so
-``"auto"`` makes its own from the training views: it holds out a few (evenly spread in
-their order, as RIFT's `holdout`), fits each candidate on the rest on one shared support,
-scores each by how well it predicts the held-out signals, and fits the winner again on
-every viewpoint. Its cost is the candidates' fits on four fifths of the views on top of
-the winner's own fit.
+No one method was best everywhere: on the stress grid at every method's defaults, with
+FISTA's λ then fixed, FISTA was within 0.05 m-SSIM of the best method in 103 of 150 cells
+and RIFT(N) in 105, and each lost by far where the other won (docs/solvers.md, "Which
+method"). A cell's unseen test views told them apart: picking the method whose predicted
+test signals had the lower phase error would have been within 0.05 of the best in 139.
+A user has no test views, so ``"auto"`` makes its own from the training views: it holds
+out a few (evenly spread in their order, as RIFT's `holdout`), fits each candidate on the
+rest on one shared support, scores each by how well it predicts the held-out signals, and
+fits the winner again on every viewpoint. Its cost is the candidates' fits on four fifths
+of the views on top of the winner's own fit. It was `fit`'s default until FISTA chose its
+own λ on held-out views: FISTA alone is now within 0.05 of the best in 148 of the 150
+cells, and beside it the held-out views chose RIFT(N) where FISTA's image was better
+(docs/experiments.md, "FISTA's λ on held-out views").
 
 The held-out views are a noisy judge, so the candidates are ranked by the one-standard-error
 rule (`rift_jax._holdout.rank`), with FISTA, convex and the faster, first: it keeps its
@@ -45,9 +48,9 @@ from ._support import estimate_support
 
 CANDIDATES = ("fista", "rift-n")
 """``"auto"``'s candidates, the two methods that were best in some cells of the stress grid
-(FISTA in 77 of 150, RIFT(N) in 73; no other in any): the first keeps its place unless
-another is clearly better (`rift_jax._holdout.rank`), and runs alone where too few
-viewpoints leave none to hold out."""
+(FISTA, its λ then fixed, in 77 of 150, RIFT(N) in 73; no other in any): the first keeps
+its place unless another is clearly better (`rift_jax._holdout.rank`), and runs alone
+where too few viewpoints leave none to hold out."""
 _OURS = (*FAILED, GridWarning)  # rift_jax's warnings about a fit or its input
 
 

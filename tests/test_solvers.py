@@ -276,6 +276,30 @@ def test_fista_chooses_its_lambda_on_held_out_views(problem):
         solvers.fista(operator, signal, sparsity="best", progress=False)
 
 
+def test_fistas_path_stops_two_past_its_best_and_keeps_the_sparser_on_a_tie(problem, monkeypatch):
+    """The path ends once two λ in a row predict the held-out views worse than the best so
+    far (`_PAST_BEST`), and of equal held-out residuals the sparser λ is chosen. The
+    scores are stand-ins, in the path's order (a V, and a tie at its bottom)."""
+    from rift_jax import _holdout
+    from rift_jax._solvers import sparse
+
+    operator, signal, _ = problem
+    real = _holdout.score
+    for residuals, tried, chosen in [
+        ([0.9, 0.8, 0.7, 0.75, 0.76, 0.5], [0.5, 0.3, 0.2, 0.1, 0.05], 0.2),
+        ([0.9, 0.8, 0.8, 0.85, 0.9, 0.5], [0.5, 0.3, 0.2, 0.1, 0.05], 0.3),
+    ]:
+        given = iter(residuals)
+
+        def scored(predicted, signal, failure=None, given=given):
+            return real(predicted, signal, failure) | {"holdout_residual": next(given)}
+
+        monkeypatch.setattr(sparse._holdout, "score", scored)
+        result = solvers.fista(operator, signal, iterations=3, progress=False)
+        assert [float(s) for s in result.stats["sparsity_path"]["scores"]] == tried
+        assert result.stats["sparsity"] == chosen
+
+
 def test_fistas_held_out_lambda_beats_the_fixed_one_on_two_grids(small_cube):
     """Under the two-grid protocol (the small cube's data, reconstructed on fit's grid
     twice as coarse) much of the data is unexplainable, like noise: the fixed λ (0.05 of

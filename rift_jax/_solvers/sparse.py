@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 import time
 import warnings
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -21,16 +22,17 @@ from .._precision import exact_jit
 from .._sharding import replicated
 from .._validation import check_positive_int, is_finite_nonnegative
 from ._common import as_complex, as_pair, check_problem, relative, residual_of, zero_signal
-from ._solution import History, Monitor, Patience, Solution, iterate
+from ._solution import History, Monitor, Outcome, Patience, Solution, iterate
 
 with warnings.catch_warnings():
     warnings.filterwarnings("ignore", message=".*no longer maintained", category=DeprecationWarning)
     import jaxopt
 
 SPARSITIES = (0.5, 0.3, 0.2, 0.1, 0.05, 0.02)
-"""The λ path of ``sparsity="auto"`` (λ relative to max|Aᴴy|), sparsest first. On the
-stress grid's noise-free data the held-out residual is lowest where the image is best,
-at 0.05-0.3 by scene and views (docs/experiments.md)."""
+"""The λ path of ``sparsity="auto"`` (λ relative to max|Aᴴy|), sparsest first. Replayed
+on the stress grid, the λ chosen ranged over 0.05-0.5 (0.2 in the median of the noise-free
+runs, 0.5 for sparse scenes from few views) and 0.02 was never chosen
+(docs/experiments.md, "FISTA's λ on held-out views")."""
 UNSPLIT = 0.05  # ``sparsity="auto"``'s λ where too few views leave none to hold out
 _PAST_BEST = 2  # the path stops after this many λ in a row predict worse than the best
 
@@ -79,7 +81,10 @@ def fista(
 
     **Arguments:**
 
-    - `operator`, `signal`, `x0`, `progress`, `monitor`: as `kaczmarz`.
+    - `operator`, `signal`, `x0`, `progress`, `monitor`: as `kaczmarz`. With
+      ``sparsity="auto"`` the monitor watches the λ path's solves too (each counts its
+      iterations from 1, and shows its image fitted on the path's views); if it ends one,
+      the path ends there and the final solve starts from the chosen λ's image.
     - `iterations`: FISTA steps.
     - `sparsity`: λ relative to max|Aᴴy|, in [0, 1), or "auto": chosen on held-out views.
     - `nonnegative`: constrain ρ to real, non-negative values.
@@ -101,15 +106,13 @@ def fista(
     sparsity tried on the others in the path's order, its ``lambda``, `rift_jax._holdout.score`
     (``holdout_residual``, ``holdout_errors``) and ``iterations`` (``scores``). Where the
     noise's floor is above some of the path's λ, they are tried once, as sparsity 0: λ at
-    the floor (above all of them, nothing is tried, and sparsity is 0).
+    the floor (above all of them, nothing is tried, and sparsity is 0). ``stopped`` (True)
+    where the monitor ended the path.
     """
     where = "fista"
     signal, x = check_problem(where, operator, signal, x0, iterations)
     check_positive_int(f"{where}: `power_iterations`", power_iterations)
-    if isinstance(sparsity, str):
-        if sparsity != "auto":
-            raise ValueError(f"{where}: `sparsity` must be in [0, 1) or 'auto', got {sparsity!r}.")
-    elif not 0 <= sparsity < 1:
+    if sparsity != "auto" and (isinstance(sparsity, str) or not 0 <= sparsity < 1):
         raise ValueError(f"{where}: `sparsity` must be in [0, 1) or 'auto', got {sparsity!r}.")
     if noise is not None and not is_finite_nonnegative(noise):
         raise ValueError(f"{where}: `noise` must be a finite σ ≥ 0 or None, got {noise!r}.")
@@ -123,7 +126,9 @@ def fista(
     )  # fmt: skip
     path = {}
     if sparsity == "auto":
-        sparsity, path = _choose(fn, signal, x, noise, seed, solve)
+        sparsity, path, stopped_at = _choose(fn, signal, x, noise, seed, solve, monitor)
+        if stopped_at is not None:  # the monitor ended the path: on from its best image
+            x = stopped_at
     largest, noise_lam = _scales(fn, signal, noise, seed)
     lam = max(sparsity * largest, noise_lam)
     rho, history, stopped, stats = solve(fn, signal, x, lam, monitor=monitor, desc=where)
@@ -144,13 +149,14 @@ def _scales(fn: GRT, signal, noise: float | None, seed: int) -> tuple[float, flo
     return largest, float(_max_backprojection(fn, _noise_draw(signal.shape, noise, seed)))
 
 
-def _choose(fn: GRT, signal, x, noise, seed, solve) -> tuple[float, dict]:
-    """``sparsity="auto"``: (the sparsity chosen, the path's record; see `fista`). Where the
-    noise's floor is above some of `SPARSITIES`' λ, they are one candidate, 0 (λ at the
-    floor), which the final solve turns into its own data's floor."""
+def _choose(fn: GRT, signal, x, noise, seed, solve, monitor) -> tuple[float, dict, Any]:
+    """``sparsity="auto"``: (the sparsity chosen, the path's record, and None, or the chosen
+    λ's image where ``monitor`` ended the path; see `fista`). Where the noise's floor is
+    above some of `SPARSITIES`' λ, they are one candidate, 0 (λ at the floor), which the
+    final solve turns into its own data's floor."""
     views = _holdout.split(fn.n_views)
     if views is None:
-        return UNSPLIT, {}
+        return UNSPLIT, {}, None
     kept, held = views
     fit_on, fit_signal = fn.subset(kept), signal[kept]
     largest, floor = _scales(fit_on, fit_signal, noise, seed)
@@ -158,26 +164,31 @@ def _choose(fn: GRT, signal, x, noise, seed, solve) -> tuple[float, dict]:
     if len(candidates) < len(SPARSITIES):
         candidates.append(0.0)
     if len(candidates) == 1:  # the floor is above every λ of the path: nothing to choose
-        return candidates[0], {}
+        return candidates[0], {}, None
     judge_on, held_signal = fn.subset(held), np.asarray(signal[held])
-    scores, worse = {}, 0
+    scores, images, worse, stopped = {}, {}, 0, False
     for k, sparsity in enumerate(candidates):
-        desc = f"fista, λ {k + 1} of {len(candidates)}, held-out views"
+        desc = f"fista, λ {k + 1} of {len(candidates)}, scored on held-out views"
         lam = max(sparsity * largest, floor)
-        x, history, _, _ = solve(fit_on, fit_signal, x, lam, desc=desc)  # denser from here
+        x, history, stop, _ = solve(fit_on, fit_signal, x, lam, monitor=monitor, desc=desc)
+        images[sparsity] = x  # and the next λ starts from it: denser from here
         scores[sparsity] = _holdout.score(judge_on(x), held_signal) | {
             "lambda": lam, "iterations": len(history.residual) - 1,
         }  # fmt: skip
         best = min(r["holdout_residual"] for r in scores.values())
         worse = worse + 1 if scores[sparsity]["holdout_residual"] > best else 0
-        if worse == _PAST_BEST:  # past the best: the denser λ, the dearer (and worse) solves
+        stopped = stop.outcome is Outcome.STOPPED  # e.g. `fit`'s time limit: no more λ
+        if stopped or worse == _PAST_BEST:  # past the best: denser λ, dearer and worse solves
             break
     record = {"views": held.tolist(), "scores": {str(s): v for s, v in scores.items()}}
     # the lowest held-out residual (the sparser on a tie). Not the one-standard-error rule
     # of `fit`'s method choice: from 10 views 2 are held out, too few for a standard
     # error, and the sparsest λ kept its place where the floor predicted clearly better
     # (0.990 against 0.999, 0.011 lower on one view and 0.002 higher on the other)
-    return min(scores, key=lambda s: scores[s]["holdout_residual"]), record
+    chosen = min(scores, key=lambda s: scores[s]["holdout_residual"])
+    if stopped:
+        record["stopped"] = True
+    return chosen, record, images[chosen] if stopped else None
 
 
 def _minimize(
