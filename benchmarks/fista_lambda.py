@@ -23,11 +23,12 @@ from pathlib import Path
 import numpy as np
 
 import rift_jax as rj
+from experiments import stability
 from experiments.runner import build_scene, draw, write_json
 
 from ._timing import complex_matmul_rate
 
-FORWARD, INVERSE, EXTENT = 0.4, 0.8, 4.8
+SCALE = stability.SCALES["default"]  # the stress grid's: its scenes' size, grids and radar
 SPARSITIES = {"fixed 0.05": 0.05, "held-out": "auto"}
 
 
@@ -38,24 +39,26 @@ def main(argv=None) -> list[dict]:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", type=Path, default=Path("results/fista_lambda.json"))
     args = parser.parse_args(argv)
-    radar = rj.Radar(n_frequencies=16, n_tx=8, n_rx=8)
-    grid = rj.Scene.empty(EXTENT, INVERSE)
+    radar = rj.Radar(n_frequencies=SCALE.n_frequencies, n_tx=SCALE.n_antennas,
+                     n_rx=SCALE.n_antennas)  # fmt: skip
+    grid = rj.Scene.empty(SCALE.extent, SCALE.inverse)
     rate = complex_matmul_rate()
     print(f"this machine's complex64 matmul (1024³): {rate:.1f} G/s")
     print("| scene | views | λ | sparsity | m-SSIM | m-COS | t-IoU | median s | × fixed |")
     print("|---|---|---|---|---|---|---|---|---|")
     rows = []
     for name in args.scenes.split(","):
-        scene = build_scene(name, FORWARD, EXTENT)
+        scene = build_scene(name, SCALE.forward, SCALE.extent)
         for n_views in map(int, args.views.split(",")):
-            train, test = draw(rj.Viewpoints.grid(), n_views, 20, 0)
+            train, test = draw(rj.Viewpoints.grid(), n_views, SCALE.n_test, 0)
             data = rj.synthesize(scene, train, radar)
             signal = np.asarray(data.signal) * data.scale
             support = rj.estimate_support(signal, train, grid, radar=radar)
             seconds = {}
             for label, sparsity in SPARSITIES.items():
-                fit = dict(radar=radar, extent=EXTENT, granularity=INVERSE, method="fista",
-                           support=support, sparsity=sparsity, progress=False)  # fmt: skip
+                fit = dict(radar=radar, extent=SCALE.extent, granularity=SCALE.inverse,
+                           method="fista", support=support, sparsity=sparsity,
+                           progress=False)  # fmt: skip
 
                 def run(signal=signal, train=train, fit=fit):
                     with warnings.catch_warnings():  # a failed fit is a row here
