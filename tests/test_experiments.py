@@ -402,6 +402,46 @@ def test_merge_joins_the_parts_of_a_study_and_refuses_two_studies(tmp_path):
     assert len(merge.merge(tmp_path / "joined", [tmp_path / "a", tmp_path / "again"])["rows"]) == 2
 
 
+def test_merge_puts_replayed_runs_in_place_of_the_grids(tmp_path):
+    """``--replace``: a replay's runs take the place of the study's runs of the same scene
+    and label (row, reconstruction and history; their comparison with the grid dropped, the
+    time counted anew); a replay of another study, of no run, or of a run already replaced
+    stops the merge."""
+    from experiments import merge
+
+    _study_folder(tmp_path / "grid", [("cube", "FISTA 10"), ("cube", "LSMR 10")])
+
+    def replay(name, rows, config=None, first=7):
+        folder = tmp_path / name
+        _study_folder(folder, rows, first=first, wall_seconds=10.0, grid=0.1, failed="")
+        results = json.loads((folder / "results.json").read_text())
+        results |= {"experiment": "replay", "config": config or {"extent": 4.8}}
+        results["config"] |= {"replay_method": "fista", "replay_options": {}}
+        runner.write_json(folder / "results.json", results)
+        return folder
+
+    fista = replay("fista", [("cube", "FISTA 10")])
+    merged = merge.merge(tmp_path / "today", [tmp_path / "grid"], [fista])
+    rows = {r["run"]: r for r in merged["rows"]}
+    assert list(rows) == ["FISTA 10", "LSMR 10"]  # in the grid's order
+    assert rows["FISTA 10"]["wall_seconds"] == 10.0 and "grid" not in rows["FISTA 10"]
+    assert "failed" not in rows["FISTA 10"]  # the report judges anew
+    assert merged["wall_seconds"] == 40.0  # 30 s replaced by 10 s
+    assert merged["parts"][-1]["replaced"] == 1
+    with np.load(tmp_path / "today" / "reconstructions.npz") as volumes:
+        np.testing.assert_array_equal(volumes["cube/FISTA 10"], np.full(3, 7))
+        np.testing.assert_array_equal(volumes["cube/LSMR 10"], np.full(3, 1))
+    other = replay("other", [("cube", "FISTA 10")], config={"extent": 2.4})
+    nowhere = replay("nowhere", [("sphere", "FISTA 10")])
+    for out, replays, message in (
+        ("a", [other], "is no replay of the parts' study"),
+        ("b", [nowhere], "sphere/FISTA 10 replaces no run of the parts"),
+        ("c", [fista, replay("again", [("cube", "FISTA 10")])], "a run already replaced"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            merge.merge(tmp_path / out, [tmp_path / "grid"], replays)
+
+
 def test_resume_reads_the_free_text_outcomes_of_older_files():
     """Rows from before typed outcomes said why a run ended in words (95641d3)."""
     Stop, Outcome = rj.solvers.Stop, rj.solvers.Outcome
