@@ -49,9 +49,11 @@ def merge(out: str | Path, parts: list[str | Path], replacements: list[str | Pat
     replacements = [Path(p) for p in replacements]
     folders = [p.resolve() for p in (*parts, *replacements)]
     if out.resolve() in folders:
-        raise ValueError(f"merge: `out` {out} is one of the parts; write the merge elsewhere.")
+        raise ValueError(
+            f"merge: `out` {out} is one of the parts or replacements; write the merge elsewhere."
+        )
     if len(set(folders)) < len(folders):
-        raise ValueError("merge: a folder is named twice in `parts`.")
+        raise ValueError("merge: a folder is named twice in `parts` and `replacements`.")
     if (out / "results.json").exists():
         raise ValueError(f"merge: `out` {out} already holds a study; choose an empty folder.")
     merged: dict | None = None
@@ -91,15 +93,30 @@ def merge(out: str | Path, parts: list[str | Path], replacements: list[str | Pat
     replaced: set[str] = set()
     for replay in replacements:
         results, own = _read(replay)
+        # a replay's config is its grid's, with the scenes it replayed and its method
         config = {k: v for k, v in results["config"].items() if k not in _REPLAY_CONFIG}
+        scenes = config.pop("scenes", ())
+        grid = {k: v for k, v in merged["config"].items() if k != "scenes"}
         study = (results["experiment"], results["scale"], config, results["seed"])
-        if study != ("replay", merged["scale"], merged["config"], merged["seed"]):
-            raise ValueError(f"merge: {replay} is no replay of the parts' study.")
+        if study != ("replay", merged["scale"], grid, merged["seed"]) or not set(scenes) <= set(
+            merged["config"].get("scenes", ())
+        ):
+            raise ValueError(
+                f"merge: `replacements`: {replay} is no replay of the parts' study (an "
+                f"experiments.replay of its scale {merged['scale']!r}, config and seed)."
+            )
         for row in results["rows"]:
             key = _key(replay, row, results, own)
             if key not in kept or key in replaced:
                 again = "a run already replaced" if key in replaced else "no run of the parts"
-                raise ValueError(f"merge: {replay}'s {key} replaces {again}.")
+                raise ValueError(f"merge: `replacements`: {replay}'s {key} replaces {again}.")
+            if (row["method"], row["options"]) != (kept[key]["method"], kept[key]["options"]):
+                raise ValueError(
+                    f"merge: `replacements`: {replay}'s {key} ran {row['method']} with "
+                    f"{row['options']}, the parts' run {kept[key]['method']} with "
+                    f"{kept[key]['options']}: only a replay at the study's own options takes "
+                    "its place."
+                )
             row = {k: v for k, v in row.items() if k not in _REPLAY_VERDICT}
             index = merged["rows"].index(kept[key])
             merged["wall_seconds"] += _run_seconds(row) - _run_seconds(kept[key])
@@ -109,7 +126,7 @@ def merge(out: str | Path, parts: list[str | Path], replacements: list[str | Pat
         merged["parts"].append({
             "folder": str(replay),
             "runs": len(results["rows"]),
-            "replaced": len(results["rows"]),
+            "replaced": len(results["rows"]),  # every run of a replay replaces one
             "machines": [results["versions"], *results.get("resumed_with", [])],
             "notes": [results.get("notes", {}), *results.get("resumed_notes", [])],
         })  # fmt: skip
@@ -123,7 +140,7 @@ def _read(folder: Path) -> tuple[dict, dict[str, np.ndarray]]:
     """A study folder's results and reconstructions."""
     for name in ("results.json", "reconstructions.npz"):
         if not (folder / name).exists():
-            raise ValueError(f"merge: part {folder} has no {name}.")
+            raise ValueError(f"merge: {folder} has no {name}.")
     with np.load(folder / "reconstructions.npz") as saved:
         own = {key: saved[key] for key in saved.files}
     return json.loads((folder / "results.json").read_text()), own
@@ -133,7 +150,7 @@ def _key(folder: Path, row: dict, results: dict, own: dict) -> str:
     """A run's key in reconstructions and histories, which ``folder`` must hold."""
     key = f"{row['scene']}/{row['run']}"
     if key not in own or key not in results["histories"]:
-        raise ValueError(f"merge: part {folder} lacks the reconstruction or history of {key}.")
+        raise ValueError(f"merge: {folder} lacks the reconstruction or history of {key}.")
     return key
 
 

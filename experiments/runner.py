@@ -357,6 +357,9 @@ class Trace:
     viewpoints (a few, since every sample synthesises them; its time is not the run's).
     `finish` adds the final result and each sample's data residual from the history.
     ``records`` then lists ``{"iteration", "seconds", "m_ssim", "p_rmse", "residual"}``.
+    A run of several solves (FISTA's λ path, then its final solve; RIFT's retries) counts
+    each solve's iterations from 1: samples of an earlier solve get ``residual`` None (the
+    history is the last solve's).
     """
 
     def __init__(self, truth, test, radar, granularity, *, first=0.25, ratio=1.5, n_views=10):
@@ -365,10 +368,15 @@ class Trace:
         self.radar, self.ratio = radar, ratio
         self.signals = rj.synthesize(truth, self.views, radar)  # the truth's, once
         self.next, self.records = first, []
+        self.solve, self._last, self._solves = 0, 0, []  # which solve each record is of
 
     def __call__(self, iteration: int, seconds: float, current) -> None:
+        if iteration <= self._last:  # its iterations count from 1 again: a new solve
+            self.solve += 1
+        self._last = iteration
         if seconds >= self.next:
             self.records.append(self._score(iteration, seconds, current()))
+            self._solves.append(self.solve)
             while self.next <= seconds:
                 self.next *= self.ratio
 
@@ -392,9 +400,13 @@ class Trace:
         residual = result.history.residual
         final = self._score(len(residual) * per_entry, result.seconds, result.scene)
         self.records.append(final)
-        for record in self.records:
+        self._solves.append(self.solve)
+        for record, solve in zip(self.records, self._solves, strict=True):
             k = min(record["iteration"] // per_entry, len(residual)) - 1
-            record["residual"] = float(residual[k]) if k >= 0 else 1.0
+            if solve != self.solve:  # an earlier solve's: not in the result's history
+                record["residual"] = None
+            else:
+                record["residual"] = float(residual[k]) if k >= 0 else 1.0
         return self.records
 
 
@@ -942,8 +954,11 @@ def environment_line(results: dict) -> str:
     machine = _machine(v)
     # a resumed file's runs may come from other machines too: name them
     parts = results.get("parts", [])  # experiments.merge: runs from several processes
-    if len(parts) > 1:
-        count += f" (in {len(parts)} parts run side by side; the time is their sum)"
+    ran = [p for p in parts if not p.get("replaced")]  # replays (`--replace`) ran later
+    if len(ran) > 1:
+        count += f" (in {len(ran)} parts run side by side; the time is their sum)"
+    if replaced := sum(p.get("replaced", 0) for p in parts):
+        count += f" ({replaced} of them replayed later, in {len(parts) - len(ran)} replays)"
     resumed = [m for p in parts for m in p["machines"]] + results.get("resumed_with", [])
     others = dict.fromkeys(_machine(r) for r in resumed if "devices" in r)
     others.pop(machine, None)

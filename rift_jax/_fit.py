@@ -316,7 +316,8 @@ def fit(
       so far (for RIFT, without the collapse check and its retries).
     - `time_limit`: seconds on that clock: the run ends after the iteration in which the
       clock passes it (`Outcome.STOPPED`), with the best reconstruction so far. An
-      iteration is a sweep, a check or an epoch, so a run may overshoot by up to one.
+      iteration is a sweep, a check or an epoch, so a run may overshoot by up to one (FISTA
+      with its λ path: one step of the path and one of the final solve).
       FISTA's λ path (its ``sparsity="auto"``) is watched too: a limit passed there ends
       the path, and the final solve, one step, starts from the best λ's image so far
       (fitted on four fifths of the views); name a ``sparsity`` to spend a tight budget

@@ -405,17 +405,23 @@ def test_merge_joins_the_parts_of_a_study_and_refuses_two_studies(tmp_path):
 def test_merge_puts_replayed_runs_in_place_of_the_grids(tmp_path):
     """``--replace``: a replay's runs take the place of the study's runs of the same scene
     and label (row, reconstruction and history; their comparison with the grid dropped, the
-    time counted anew); a replay of another study, of no run, or of a run already replaced
-    stops the merge."""
+    time counted anew). A replay covers some of the grid's scenes; one of another study,
+    of no run, of a run already replaced, or at other options stops the merge."""
     from experiments import merge
 
-    _study_folder(tmp_path / "grid", [("cube", "FISTA 10"), ("cube", "LSMR 10")])
+    same = dict(method="fista", options={"support": "auto"})
+    _study_folder(tmp_path / "grid", [("cube", "FISTA 10"), ("cube", "LSMR 10")], **same)
+    grid = json.loads((tmp_path / "grid" / "results.json").read_text())
+    grid["config"] |= {"scenes": ["cube", "sphere"]}
+    runner.write_json(tmp_path / "grid" / "results.json", grid)
 
-    def replay(name, rows, config=None, first=7):
+    def replay(name, rows, config=None, **row):
         folder = tmp_path / name
-        _study_folder(folder, rows, first=first, wall_seconds=10.0, grid=0.1, failed="")
+        row = same | {"wall_seconds": 10.0, "grid": 0.1, "failed": ""} | row
+        _study_folder(folder, rows, first=7, **row)
         results = json.loads((folder / "results.json").read_text())
-        results |= {"experiment": "replay", "config": config or {"extent": 4.8}}
+        config = config or {"extent": 4.8, "scenes": ["cube"]}  # the scenes it replayed
+        results |= {"experiment": "replay", "config": config}
         results["config"] |= {"replay_method": "fista", "replay_options": {}}
         runner.write_json(folder / "results.json", results)
         return folder
@@ -428,15 +434,21 @@ def test_merge_puts_replayed_runs_in_place_of_the_grids(tmp_path):
     assert "failed" not in rows["FISTA 10"]  # the report judges anew
     assert merged["wall_seconds"] == 40.0  # 30 s replaced by 10 s
     assert merged["parts"][-1]["replaced"] == 1
+    assert "2 runs (1 of them replayed later, in 1 replays)" in runner.environment_line(merged)
     with np.load(tmp_path / "today" / "reconstructions.npz") as volumes:
         np.testing.assert_array_equal(volumes["cube/FISTA 10"], np.full(3, 7))
         np.testing.assert_array_equal(volumes["cube/LSMR 10"], np.full(3, 1))
     other = replay("other", [("cube", "FISTA 10")], config={"extent": 2.4})
+    pier = {"extent": 4.8, "scenes": ["pier"]}  # a scene the grid did not run
+    elsewhere = replay("elsewhere", [("cube", "FISTA 10")], config=pier)
     nowhere = replay("nowhere", [("sphere", "FISTA 10")])
+    tuned = replay("tuned", [("cube", "FISTA 10")], options={"support": "auto", "sparsity": 0.1})
     for out, replays, message in (
         ("a", [other], "is no replay of the parts' study"),
-        ("b", [nowhere], "sphere/FISTA 10 replaces no run of the parts"),
-        ("c", [fista, replay("again", [("cube", "FISTA 10")])], "a run already replaced"),
+        ("b", [elsewhere], "is no replay of the parts' study"),
+        ("c", [nowhere], "sphere/FISTA 10 replaces no run of the parts"),
+        ("d", [fista, replay("again", [("cube", "FISTA 10")])], "a run already replaced"),
+        ("e", [tuned], "only a replay at the study's own options"),
     ):
         with pytest.raises(ValueError, match=message):
             merge.merge(tmp_path / out, [tmp_path / "grid"], replays)

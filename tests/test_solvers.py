@@ -300,6 +300,47 @@ def test_fistas_path_stops_two_past_its_best_and_keeps_the_sparser_on_a_tie(prob
         assert result.stats["sparsity"] == chosen
 
 
+def test_a_monitor_that_stops_fistas_path_starts_the_final_solve_from_the_best_lambda(
+    problem, monkeypatch
+):
+    """A monitor sees the path's solves (each counting its iterations from 1); one that
+    stops the third λ's solve ends the path there, and the final solve starts from the
+    image of the best λ so far (the second, by stand-in scores), not from the last one."""
+    from rift_jax import _holdout
+    from rift_jax._solvers import sparse
+
+    operator, signal, _ = problem
+    real_score, real_minimize = _holdout.score, sparse._minimize
+    given = iter([0.9, 0.7, 0.8])
+    starts, images = [], []
+
+    def scored(predicted, signal, failure=None):
+        return real_score(predicted, signal, failure) | {"holdout_residual": next(given)}
+
+    def minimize(fn, signal, x, lam, **options):
+        starts.append(np.asarray(x))
+        out = real_minimize(fn, signal, x, lam, **options)
+        images.append(np.asarray(out[0]))
+        return out
+
+    monkeypatch.setattr(sparse._holdout, "score", scored)
+    monkeypatch.setattr(sparse, "_minimize", minimize)
+    calls = []
+
+    def monitor(iteration, seconds, current):
+        calls.append(iteration)
+        return len(calls) >= 7  # the third λ's first step, and the final solve's
+
+    result = solvers.fista(operator, signal, iterations=3, tol=0, monitor=monitor, progress=False)
+    assert calls == [1, 2, 3, 1, 2, 3, 1, 1]
+    path = result.stats["sparsity_path"]
+    assert path["stopped"] and [float(s) for s in path["scores"]] == [0.5, 0.3, 0.2]
+    assert result.stats["sparsity"] == 0.3
+    np.testing.assert_array_equal(starts[-1], images[1])  # the 0.3 image, not the 0.2 one
+    assert not np.array_equal(images[1], images[2])
+    assert result.stopped == rj.solvers.Stop(rj.solvers.Outcome.STOPPED, 1)
+
+
 def test_fistas_held_out_lambda_beats_the_fixed_one_on_two_grids(small_cube):
     """Under the two-grid protocol (the small cube's data, reconstructed on fit's grid
     twice as coarse) much of the data is unexplainable, like noise: the fixed λ (0.05 of

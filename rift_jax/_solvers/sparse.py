@@ -31,7 +31,8 @@ with warnings.catch_warnings():
 SPARSITIES = (0.5, 0.3, 0.2, 0.1, 0.05, 0.02)
 """The λ path of ``sparsity="auto"`` (λ relative to max|Aᴴy|), sparsest first. Replayed
 on the stress grid, the λ chosen ranged over 0.05-0.5 (0.2 in the median of the noise-free
-runs, 0.5 for sparse scenes from few views) and 0.02 was never chosen
+runs, 0.5 for the sparsest scenes: the parking lot, the weak target from 10-30 views) and
+0.02 was never chosen
 (docs/experiments.md, "FISTA's λ on held-out views")."""
 UNSPLIT = 0.05  # ``sparsity="auto"``'s λ where too few views leave none to hold out
 _PAST_BEST = 2  # the path stops after this many λ in a row predict worse than the best
@@ -64,7 +65,8 @@ def fista(
     than the best so far), and the λ whose image predicts the held-out signals best (the
     lowest `rift_jax._holdout.holdout_residual`: at their best complex gain; the sparser on
     a tie) is solved again on every view, from the start: the result is
-    ``fista(sparsity=stats["sparsity"])``'s. With too few views to hold any out, `UNSPLIT`.
+    ``fista(sparsity=stats["sparsity"])``'s (unless ``monitor`` stopped the path: below).
+    With too few views to hold any out, `UNSPLIT`.
     Where the noise is known (``noise``), λ is at least max|Aᴴn| for a draw n of it: the
     smallest λ at which noise alone reconstructs to ρ = 0 (then 0 is optimal: |Aᴴn| ≤ λ
     everywhere), so that the prior keeps no point that the noise could have made. On the
