@@ -39,8 +39,7 @@ def main(argv=None) -> list[dict]:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", type=Path, default=Path("results/fista_lambda.json"))
     args = parser.parse_args(argv)
-    radar = rj.Radar(n_frequencies=SCALE.n_frequencies, n_tx=SCALE.n_antennas,
-                     n_rx=SCALE.n_antennas)  # fmt: skip
+    radar = SCALE.radar()
     grid = rj.Scene.empty(SCALE.extent, SCALE.inverse)
     rate = complex_matmul_rate()
     print(f"this machine's complex64 matmul (1024³): {rate:.1f} G/s")
@@ -86,7 +85,6 @@ def main(argv=None) -> list[dict]:
                 print(f"| {name} | {n_views} | {label} | {row['sparsity']:g} | "
                       f"{row['m_ssim']:.3f} | {row['m_cos']:.3f} | {row['t_iou']:.3f} | "
                       f"{row['seconds']:.2f} | {ratio:.1f} |", flush=True)  # fmt: skip
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     write_json(args.out, {"matmul_G_per_s": rate, "repeats": args.repeats, "rows": rows})
     print(f"wrote {args.out}")
     return rows

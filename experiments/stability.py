@@ -92,6 +92,11 @@ class Config:
     budgets: tuple[tuple[str, tuple[tuple[str, int], ...]], ...] = ()  # options beyond the
     # defaults, per method (the quick scale's small budgets); () at the default scale
 
+    def radar(self) -> rj.Radar:
+        """The scale's radar: its frequencies, and as many transmitters as receivers."""
+        return rj.Radar(n_frequencies=self.n_frequencies, n_tx=self.n_antennas,
+                        n_rx=self.n_antennas)  # fmt: skip
+
 
 RANDOM_SCENES = tuple(f"random-{k}" for k in range(4))
 SNRS = (None, 20.0, 10.0, 0.0, -10.0)
@@ -419,7 +424,7 @@ def on_the_grid(
     ``cfg`` (the stress grid's, or a study of its cells), with ``report(results, volumes,
     figures, cfg, out)``."""
     scenes = {scene: build_scene(scene, cfg.forward, cfg.extent) for scene in cfg.scenes}
-    radar = rj.Radar(n_frequencies=cfg.n_frequencies, n_tx=cfg.n_antennas, n_rx=cfg.n_antennas)
+    radar = cfg.radar()
     return execute(
         name,
         scale,
