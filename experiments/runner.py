@@ -269,11 +269,11 @@ PAPER_STOPPING = {
 }
 """How the paper-scale scene studies skip what a scene does not need: every method on the
 support estimated from its data, RIFT on an active set, and each run stopped once
-converged. The weak target takes all but the support (its 36° aperture leaves the
-estimate 92-99 % of the grid: docs/solvers.md). The active set is re-chosen as `fit`'s
-default does it, every 10 epochs (`Budget.recheck_every`), so first after 10 epochs on
-every point: chosen after 2, it had dropped the weaker bar at 3:1 and 4:1 before the
-field learned it (docs/experiments.md, the weak target)."""
+converged. The weak target estimates its support from all its 500 views (from 100, its
+36° aperture's sidelobes leave 92-99 % of the grid: docs/solvers.md). The active set is
+re-chosen as `fit`'s default does it, every 10 epochs (`Budget.recheck_every`), so first
+after 10 epochs on every point: chosen after 2, it had dropped the weaker bar at 3:1 and
+4:1 before the field learned it (docs/experiments.md, the weak target)."""
 
 
 PAPER_SCENES = ("sphere", "cube", "pyramid", "parking_lot", "highway", "weak_target")
@@ -502,6 +502,7 @@ def execute(
     per_run: Collection[str] = ("budget",),
     progress: bool = True,
     part: tuple[int, int] | None = None,
+    support_views: int | None = None,
 ) -> dict:
     """Do every run not yet in ``out`` (with ``resume``), writing after each. Returns the
     results dict (as in ``results.json``).
@@ -519,7 +520,9 @@ def execute(
     n processes or machines sharing the study, each with its own ``out``;
     ``python -m experiments.merge`` joins them. ``notes`` go into the results as they are
     (e.g. the machine's matmul rate); a resumed run keeps the first run's and adds the new
-    ones under ``resumed_notes``.
+    ones under ``resumed_notes``. ``support_views``: how many of a run's training views
+    its shared ``support="auto"`` estimate reads (`SharedSupports`; None: `fit`'s own
+    estimate, `rift_jax.estimate_support`'s default).
 
     ``resume`` refuses another seed or a changed setting of ``cfg``, except those named in
     ``per_run``: settings that only shape the runs (which runs, their `fit` options), which
@@ -568,7 +571,7 @@ def execute(
         volumes[f"truth/{key}"] = np.asarray(scene.resample(grids[key]).reflectivity)
 
     drawn = time.perf_counter()
-    supports = SharedSupports(radar)
+    supports = SharedSupports(radar, support_views)
 
     order = {(run.scene, run.label): k for k, run in enumerate(runs)}
 
@@ -679,10 +682,15 @@ class SharedSupports:
     seed, inverse grid), not once per run: every method that runs on the same data gets the
     same mask, for the price of one estimate. `fit` then takes the mask as its support; the
     runner adds the estimate's seconds to every run's ``fit_seconds``, so each run's time
-    is still what it would cost alone, and the row's ``support_seconds`` names the share."""
+    is still what it would cost alone, and the row's ``support_seconds`` names the share.
 
-    def __init__(self, radar: rj.Radar):
+    ``max_views``: the views each estimate reads (`rift_jax.estimate_support`'s; None: its
+    default, the estimate `fit` makes itself). More views lower the backprojection's
+    sidelobes where a limited aperture leaves them high (the weak target's)."""
+
+    def __init__(self, radar: rj.Radar, max_views: int | None = None):
         self.radar = radar
+        self.views = {} if max_views is None else {"max_views": max_views}
         self.estimates: dict = {}
 
     def get(self, name: str, scene, train, granularity, seed, options) -> EstimatedSupport:
@@ -701,7 +709,7 @@ class SharedSupports:
         mask = None
         if np.any(np.asarray(signal)):
             grid = rj.Scene.empty(scene.extent, granularity)
-            mask = rj.estimate_support(signal, train, grid, radar=self.radar)
+            mask = rj.estimate_support(signal, train, grid, radar=self.radar, **self.views)
         self.estimates[key] = EstimatedSupport(mask, time.perf_counter() - start, False)
         return self.estimates[key]
 
