@@ -132,6 +132,23 @@ def test_shared_support_is_the_one_fit_estimates(small_cube):
     assert not other_noise.reused
 
 
+def test_shared_support_reads_the_views_it_is_given(small_cube, monkeypatch):
+    """``support_views`` reaches the estimate as its ``max_views`` (the weak target's paper
+    scale reads all 500 views); without it, the estimate is `fit`'s own, at its default."""
+    radar, scene, train, _ = small_cube
+    asked = []
+
+    def estimate(signal, viewpoints, grid, **options):
+        asked.append(options.pop("max_views", None))
+        assert options == {"radar": radar}
+        return np.ones(grid.shape, bool)
+
+    monkeypatch.setattr(rj, "estimate_support", estimate)
+    for views in (12, None):
+        runner.SharedSupports(radar, views).get("cube", scene, train, 0.5, 0, {})
+    assert asked == [12, None]
+
+
 @pytest.mark.slow
 def test_resume_repeats_nothing_and_checks_the_config(quick_run, monkeypatch):
     _, module, out, results, _ = quick_run
