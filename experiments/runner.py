@@ -32,6 +32,7 @@ import jax
 import numpy as np
 
 import rift_jax as rj
+from benchmarks._timing import complex_matmul_rate
 from rift_jax import _io
 
 # -- writing: an interrupted run never leaves a half-written file ---------------------------
@@ -229,8 +230,11 @@ class Budget:
     def _support(self) -> dict:
         return {"support": self.support}  # named: `fit`'s default is "auto"
 
-    def describe(self, model: str = "RIFT", fista: bool = False) -> str:
-        """The budgets in words, for a results page (FISTA's too, if it ran)."""
+    def describe(
+        self, model: str = "RIFT", fista: bool = False, support_views: int | None = None
+    ) -> str:
+        """The budgets in words, for a results page (FISTA's too, if it ran; the views the
+        support estimate read, if the study set them: `execute`'s ``support_views``)."""
         ls = f"Kaczmarz {self.sweeps} sweep(s)"
         if self.ls_tol:
             ls = (
@@ -256,7 +260,9 @@ class Budget:
             )
         if self.support == "auto":
             text += (
-                '; every method on the support estimated from its training data (`support="auto"`)'
+                '; every method on the support estimated from its training data (`support="auto"`'
+                + ("" if support_views is None else f", from at most {support_views} views")
+                + ")"
             )
         return text
 
@@ -269,8 +275,8 @@ PAPER_STOPPING = {
 }
 """How the paper-scale scene studies skip what a scene does not need: every method on the
 support estimated from its data, RIFT on an active set, and each run stopped once
-converged. The weak target estimates its support from all its 500 views (from 100, its
-36° aperture's sidelobes leave 92-99 % of the grid: docs/solvers.md). The active set is
+converged. How many views the estimate reads is the study's (`execute`'s ``support_views``;
+the weak target reads all 500). The active set is
 re-chosen as `fit`'s default does it, every 10 epochs (`Budget.recheck_every`), so first
 after 10 epochs on every point: chosen after 2, it had dropped the weaker bar at 3:1 and
 4:1 before the field learned it (docs/experiments.md, the weak target)."""
@@ -456,6 +462,8 @@ def versions() -> dict:
         "devices": [str(d) for d in jax.devices()],
         "device_kind": jax.devices()[0].device_kind,  # an accelerator's name, e.g. "NVIDIA H100"
         "cpu_count": os.cpu_count(),
+        # the machine's speed that day (shared machines vary 2-5×): read run times against it
+        "matmul_rate_gmacs": complex_matmul_rate(),
     }
 
 
@@ -520,14 +528,21 @@ def execute(
     n processes or machines sharing the study, each with its own ``out``;
     ``python -m experiments.merge`` joins them. ``notes`` go into the results as they are
     (e.g. the machine's matmul rate); a resumed run keeps the first run's and adds the new
-    ones under ``resumed_notes``. ``support_views``: how many of a run's training views
-    its shared ``support="auto"`` estimate reads (`SharedSupports`; None: `fit`'s own
-    estimate, `rift_jax.estimate_support`'s default).
+    ones under ``resumed_notes``. ``support_views``: at most how many of a run's training
+    views its shared ``support="auto"`` estimate reads (`SharedSupports`; None:
+    `rift_jax.estimate_support`'s default, the estimate `fit` makes itself). Runs given a
+    mask or ``support=None`` make no estimate; a traced study makes none either (each run's
+    estimate is on its own clock, `fit`'s), so it refuses ``support_views``.
 
     ``resume`` refuses another seed or a changed setting of ``cfg``, except those named in
     ``per_run``: settings that only shape the runs (which runs, their `fit` options), which
     may change as long as every run already done is still asked for, unchanged. A setting
     the file lacks (added to the experiment since) must be at its default."""
+    if trace is not None and support_views is not None:
+        raise ValueError(
+            f"{name}: `support_views` needs the shared estimate, which a traced study does "
+            f"not make (`trace` is set); got support_views={support_views!r}."
+        )
     out = Path(out)
     config = _as_json(dataclasses.asdict(cfg))
     results = {"experiment": name, "scale": scale, "config": config, "seed": seed}
@@ -690,7 +705,7 @@ class SharedSupports:
 
     def __init__(self, radar: rj.Radar, max_views: int | None = None):
         self.radar = radar
-        self.views = {} if max_views is None else {"max_views": max_views}
+        self.max_views = max_views
         self.estimates: dict = {}
 
     def get(self, name: str, scene, train, granularity, seed, options) -> EstimatedSupport:
@@ -704,12 +719,13 @@ class SharedSupports:
         key += (seed if snr_db is not None else None,)  # the noise's seed, if any noise
         if key in self.estimates:
             return dataclasses.replace(self.estimates[key], reused=True)
-        start = time.perf_counter()
         signal = rj.synthesize(scene, train, self.radar, snr_db=snr_db, seed=seed).signal
+        start = time.perf_counter()  # after the data, as `fit`'s own clock starts
         mask = None
         if np.any(np.asarray(signal)):
             grid = rj.Scene.empty(scene.extent, granularity)
-            mask = rj.estimate_support(signal, train, grid, radar=self.radar, **self.views)
+            views = {} if self.max_views is None else {"max_views": self.max_views}
+            mask = rj.estimate_support(signal, train, grid, radar=self.radar, **views)
         self.estimates[key] = EstimatedSupport(mask, time.perf_counter() - start, False)
         return self.estimates[key]
 
@@ -970,6 +986,8 @@ def environment_line(results: dict) -> str:
     resumed = [m for p in parts for m in p["machines"]] + results.get("resumed_with", [])
     others = dict.fromkeys(_machine(r) for r in resumed if "devices" in r)
     others.pop(machine, None)
+    if "matmul_rate_gmacs" in v:  # the first machine's speed that day
+        machine += f", its complex64 matmul at {v['matmul_rate_gmacs']:.1f} G/s"
     if others:
         machine += f", resumed on {'; '.join(others)}"
     line = (

@@ -139,14 +139,39 @@ def test_shared_support_reads_the_views_it_is_given(small_cube, monkeypatch):
     asked = []
 
     def estimate(signal, viewpoints, grid, **options):
-        asked.append(options.pop("max_views", None))
+        asked.append(options.pop("max_views", "its default"))
         assert options == {"radar": radar}
         return np.ones(grid.shape, bool)
 
     monkeypatch.setattr(rj, "estimate_support", estimate)
     for views in (12, None):
         runner.SharedSupports(radar, views).get("cube", scene, train, 0.5, 0, {})
-    assert asked == [12, None]
+    assert asked == [12, "its default"]
+
+
+def test_weak_target_hands_its_support_views_to_the_estimate(tmp_path, monkeypatch):
+    """The paper scale's estimate reads every training view, and the study's setting
+    reaches the shared estimate through `execute` (stopped there: nothing is fitted); a
+    traced study, which makes no shared estimate, refuses it."""
+    paper = weak_target.SCALES["paper"]
+    assert paper.support_views == paper.n_train and paper.budget.support == "auto"
+
+    class Made(Exception):
+        pass
+
+    def shared(radar, max_views=None):
+        raise Made(max_views)
+
+    monkeypatch.setattr(runner, "SharedSupports", shared)
+    quick = dataclasses.replace(weak_target.SCALES["quick"], support_views=7)
+    with pytest.raises(Made) as made:
+        weak_target.main(quick, out=tmp_path, progress=False)
+    assert made.value.args == (7,)
+    with pytest.raises(ValueError, match="`support_views` needs the shared estimate"):
+        runner.execute(
+            "weak_target", "quick", quick, {}, [], pool=None, radar=None, inverse=0.5,
+            n_test=1, seed=0, out=tmp_path, report=None, trace={}, support_views=7,
+        )  # fmt: skip
 
 
 @pytest.mark.slow
@@ -333,6 +358,9 @@ def test_the_environment_line_names_every_commit_a_resumed_file_ran():
     line = runner.environment_line(results)
     assert line.endswith(" Code at commit aaaaaaa, resumed at bbbbbbb.")
     assert "1 runs in 1.0 min (fit + evaluation) on 2 CPU cores (cpu:0);" in line
+    results["versions"] |= {"matmul_rate_gmacs": 12.34}  # recorded since: the day's speed
+    line = runner.environment_line(results)
+    assert "on 2 CPU cores (cpu:0), its complex64 matmul at 12.3 G/s;" in line
 
 
 def test_the_environment_line_names_the_accelerator_and_an_unfinished_study():
