@@ -23,9 +23,9 @@ Writes (atomically, after every run; ``--resume`` goes on from an interrupted ru
 `fit` name, with the traces), ``results.md`` (time to reach m-SSIM 0.5 / 0.8 / 0.9, and the
 m-SSIM a run stopped at 1 / 5 / 15 min gives, per scene and number of views),
 ``time_to_quality.png`` (m-SSIM and p-RMSE against seconds, one curve per method) and
-``reconstructions.npz``. It prints,
-and records, this machine's complex matmul rate from the same run, so the times can be
-read on another machine.
+``reconstructions.npz``. Like every
+experiment (`experiments.runner.versions`), it prints and records this machine's complex
+matmul rate from the same run, so the times can be read on another machine.
 
 Scales:
 - quick: seconds, for the tests (the cube, ±2 m at 0.5 / 1.0 m, a small radar, 10 views,
@@ -57,8 +57,6 @@ from experiments.runner import (
     table,
     write_atomic,
 )
-
-from ._timing import complex_matmul_rate
 
 LEAST_SQUARES = ("kaczmarz", "lsmr", "gauss-newton", "fista")
 THRESHOLDS = (0.5, 0.8, 0.9)  # m-SSIM levels: time to reach each
@@ -162,8 +160,6 @@ def main(
     progress: bool,
     part: tuple[int, int] | None = None,
 ):
-    rate = complex_matmul_rate()
-    print(f"complex64 matmul on this machine: {rate:.2f} G multiply-adds/s", flush=True)
     radar = rj.Radar(n_frequencies=cfg.n_frequencies, n_tx=cfg.n_antennas, n_rx=cfg.n_antennas)
     scenes = {name: getattr(rj.scenes, name)(cfg.forward, extent=cfg.extent) for name in cfg.scenes}
 
@@ -186,7 +182,6 @@ def main(
         out=out,
         report=report,
         trace={"first": cfg.first_sample},
-        notes={"matmul_rate_gmacs": rate},
         resume=resume,
         progress=progress,
         part=part,
@@ -220,17 +215,13 @@ def _number(value: float | None) -> str:
 
 def markdown(results: dict, cfg: Config, scale: str, figures: bool) -> str:
     rows = results["rows"]
-    rate = results.get("notes", {}).get("matmul_rate_gmacs")
     lines = [
         f"# Run time against error ({scale} scale)",
         "",
         f"±{cfg.extent:g} m, forward {cfg.forward:g} m, inverse {cfg.inverse:g} m; radar "
         f"{cfg.n_frequencies} frequencies over 95-105 GHz, {cfg.n_antennas} × "
         f"{cfg.n_antennas} antennas; {cfg.n_test} unseen test viewpoints shared by every "
-        "run; traces sampled on a 1.5× time ladder (p-RMSE at 10 of the test views). "
-        f"This machine's complex64 matmul: {rate:.2f} G multiply-adds/s."
-        if rate
-        else "",
+        "run; traces sampled on a 1.5× time ladder (p-RMSE at 10 of the test views).",
         "",
         environment_line(results),
         "",

@@ -548,6 +548,7 @@ def execute(
     results = {"experiment": name, "scale": scale, "config": config, "seed": seed}
     results |= {"rows": [], "histories": {}, "wall_seconds": 0.0}
     volumes: dict[str, np.ndarray] = {}
+    machine = versions()  # this process's machine and its speed today
     if resume and (out / "results.json").exists():
         done = json.loads((out / "results.json").read_text())
         changed = f"seed {done['seed']}, now {seed}" if done["seed"] != seed else None
@@ -566,13 +567,14 @@ def execute(
             results.setdefault("resumed_from_configs", []).append(done["config"])
         with np.load(out / "reconstructions.npz") as saved:
             volumes = {key: saved[key] for key in saved.files}
-        results.setdefault("resumed_with", []).append(versions())  # the first run's stay
+        results.setdefault("resumed_with", []).append(machine)  # the first run's stay
         if notes:
             results.setdefault("resumed_notes", []).append(dict(notes))
         print(f"resuming: {len(done['rows'])} runs kept from {out / 'results.json'}", flush=True)
     else:
-        results["versions"] = versions()
+        results["versions"] = machine
         results |= {"notes": dict(notes or {})}
+    print(f"complex64 matmul on this machine: {machine['matmul_rate_gmacs']:.1f} G/s", flush=True)
     results["planned_runs"] = len(runs)  # the report says when a stopped study is unfinished
     asked = runs
     results.pop("part", None)  # a folder of one part, resumed as a whole
@@ -986,8 +988,9 @@ def environment_line(results: dict) -> str:
     resumed = [m for p in parts for m in p["machines"]] + results.get("resumed_with", [])
     others = dict.fromkeys(_machine(r) for r in resumed if "devices" in r)
     others.pop(machine, None)
-    if "matmul_rate_gmacs" in v:  # the first machine's speed that day
-        machine += f", its complex64 matmul at {v['matmul_rate_gmacs']:.1f} G/s"
+    # the first machine's speed that day (time_to_quality's first runs kept it in notes)
+    if rate := v.get("matmul_rate_gmacs", results.get("notes", {}).get("matmul_rate_gmacs")):
+        machine += f", its complex64 matmul at {rate:.1f} G/s"
     if others:
         machine += f", resumed on {'; '.join(others)}"
     line = (
