@@ -527,12 +527,13 @@ def execute(
     ``trace``. ``part`` ``(k, n)`` does only runs k, k + n, k + 2n, ... (k from 1): one of
     n processes or machines sharing the study, each with its own ``out``;
     ``python -m experiments.merge`` joins them. ``notes`` go into the results as they are
-    (e.g. the machine's matmul rate); a resumed run keeps the first run's and adds the new
-    ones under ``resumed_notes``. ``support_views``: at most how many of a run's training
-    views its shared ``support="auto"`` estimate reads (`SharedSupports`; None:
-    `rift_jax.estimate_support`'s default, the estimate `fit` makes itself). Runs given a
-    mask or ``support=None`` make no estimate; a traced study makes none either (each run's
-    estimate is on its own clock, `fit`'s), so it refuses ``support_views``.
+    (the machine's matmul rate is recorded anyway, in ``versions``); a resumed run keeps
+    the first run's and adds the new ones under ``resumed_notes``. ``support_views``: at
+    most how many of a run's training views its shared ``support="auto"`` estimate reads
+    (`SharedSupports`; None: `rift_jax.estimate_support`'s default, the estimate `fit`
+    makes itself). Runs given a mask or ``support=None`` make no estimate; a traced study
+    makes none either (each run's estimate is on its own clock, `fit`'s), so it refuses
+    ``support_views``.
 
     ``resume`` refuses another seed or a changed setting of ``cfg``, except those named in
     ``per_run``: settings that only shape the runs (which runs, their `fit` options), which

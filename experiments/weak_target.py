@@ -34,10 +34,9 @@ Scales:
   residual stalls (`tol=1e-3`), RIFT after 10 epochs without progress (`patience`). Both
   run on one support per contrast, estimated from all 500 training views (55 % of the
   grid at 4:1, 89 % at 1:1; from 100, the estimate's default, the aperture's sidelobes
-  keep 96 % at 4:1), and
-  RIFT on an active set chosen from its field every 10 epochs (`prune=0.05`, as `fit`
-  does). The whole grid on all 100 sweeps and epochs is ~18 hours on 2 CPU cores; the
-  H100 reference ran it in 12 minutes.
+  keep 96 % at 4:1), and RIFT on an active set chosen from its field every 10 epochs
+  (`prune=0.05`, as `fit` does). The whole grid on all 100 sweeps and epochs is ~18
+  hours on 2 CPU cores; the H100 reference ran it in 12 minutes.
 
 Writes results.json, results.md, reconstructions.npz, weak_target.png (LS row, RIFT row,
 truth row; top view), profiles.png (the x profiles) and training.png into ``--out``.
