@@ -474,18 +474,34 @@ def test_returns_its_best_iterate_never_worse_than_zero(inconsistent, name):
     assert direct < 1.0
 
 
-def test_kaczmarz_relaxation_schedule(inconsistent):
-    """At λ = 1 a sweep over inconsistent data ends above the start's residual: the sweep is
-    undone and λ halved, so the residual of what is kept only goes down."""
+def test_kaczmarz_keeps_each_sweep_as_far_as_it_helps(inconsistent):
+    """At λ = 1 a sweep over inconsistent data overshoots, and the line search keeps the
+    point of its segment with the lowest residual (t < 1, measured here independently
+    against points either side); the history only goes down, and the next sweep's λ is
+    λ·t, at least half and at most all of this one's."""
     operator, signal = inconsistent
+
+    def residual(rho):
+        return np.linalg.norm(signal - np.asarray(operator.mv(rho))) / np.linalg.norm(signal)
+
+    one = solvers.kaczmarz(operator, signal, iterations=1, relaxation=1.0, tol=0, progress=False)
+    (t,) = one.stats["steps"]
+    end = np.asarray(one.rho) / t  # from ρ = 0, the kept point is t times the sweep's end
+    assert 0 < t < 1, "λ = 1 was expected to overshoot on this data"
+    at = {s: residual(s * end) for s in (0.9 * t, t, 1.1 * t)}
+    assert at[t] < min(at[0.9 * t], at[1.1 * t])
+    assert one.history.residual[0] == pytest.approx(at[t], rel=1e-4)
+
     solution = solvers.kaczmarz(operator, signal, iterations=8, relaxation=1.0, progress=False)
-    relaxations, undone = solution.stats["relaxations"], solution.stats["undone"]
-    assert undone, "λ = 1 was expected to overshoot on this data"
-    assert relaxations[0] == 1.0 and relaxations[-1] == 0.5 ** len(undone)
-    kept = [r for k, r in enumerate(solution.history.residual, 1) if k not in undone]
-    assert np.all(np.diff(kept) < 0)
-    for k in undone:  # an undone sweep did not improve on everything before it
-        assert solution.history.residual[k - 1] >= min([1.0, *solution.history.residual[: k - 1]])
+    relaxations, steps = solution.stats["relaxations"], solution.stats["steps"]
+    assert len(relaxations) == len(steps) == len(solution.history.residual)
+    assert relaxations[0] == 1.0 and steps[0] == t  # the same first sweep
+    for k in range(1, len(steps)):
+        expected = relaxations[k - 1] * min(max(steps[k - 1], 0.5), 1.0)
+        assert relaxations[k] == pytest.approx(expected, rel=1e-6)
+    assert relaxations[-1] < 1.0
+    assert np.all(np.diff(solution.history.residual) <= 0)
+    assert solution.history.residual[-1] == pytest.approx(residual(solution.rho), rel=1e-4)
 
 
 def test_fista_tracks_its_iterates_residual_exactly(problem):
