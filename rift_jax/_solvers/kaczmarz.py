@@ -109,8 +109,8 @@ def kaczmarz(
         lam = jnp.float32(relaxations[-1])  # traced: a new λ must not recompile
         x, misfit, t, squares = _sweep(fn, points, mask, x, state["misfit"], signal, order, lam)
         steps.append(float(t))
-        # the next sweep goes as far as this one's best point: λ·t, at least λ/2 (a sweep
-        # at λ and its line search cost the same whatever λ), at most λ
+        # the next sweep runs at λ·t, as far as this one's best point: at least λ/2 (one
+        # sweep's t is noisy) and at most λ (going further is the line search's to do)
         relaxations.append(relaxations[-1] * min(max(steps[-1], 0.5), 1.0))
         state["misfit"] = misfit
         return x, float(relative(jnp.sqrt(squares), norm))
@@ -133,8 +133,8 @@ def kaczmarz(
 @exact_jit
 def _sweep(fn: GRT, points, mask, x, misfit, signal, order, lam):
     """One sweep from ρ = ``x`` (whose residual per viewpoint is ``misfit``) and the line
-    search along it: ``-> (ρ', y − Aρ', t, ‖y − Aρ₁‖², ‖y − Aρ'‖²)`` with ρ₁ the sweep's end
-    and ρ' = ρ + t(ρ₁ − ρ) at the best t ≥ 0, the voxels (points, mask, ρ) split over the
+    search along it: ``-> (ρ', y − Aρ', t, ‖y − Aρ'‖²)`` with ρ₁ the sweep's end and
+    ρ' = ρ + t(ρ₁ − ρ) at the best t ≥ 0, the voxels (points, mask, ρ) split over the
     devices. Module-level and jitted on its arguments, so repeated runs of one problem size
     compile once."""
     n_dev = jax.device_count()
