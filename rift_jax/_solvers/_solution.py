@@ -152,8 +152,9 @@ class Patience:
 
     @classmethod
     def from_tol(cls, tol: float) -> Patience | None:
-        """The least-squares solvers' ``tol``: three iterations (Kaczmarz's and FISTA's
-        residuals are not monotone); ``tol=0`` runs the whole budget (None)."""
+        """The least-squares solvers' ``tol``: three iterations (FISTA's residual is not
+        monotone, and a Kaczmarz sweep can gain little before the next gains more);
+        ``tol=0`` runs the whole budget (None)."""
         return cls(3, tol) if tol > 0 else None
 
 

@@ -48,18 +48,20 @@ def kaczmarz(
     image's (1.05 on the cube at 0.3 / 0.6 m, 1.22 at the paper's grids), and smaller λ come
     closer to the least-squares floor (0.97 at λ = 0.25, 0.956 at 0.05; LSMR's 0.955). So
     after each sweep from ρ to ρ₁ the residual of the whole iterate is measured (one more
-    forward pass per viewpoint: a sweep costs four one-viewpoint kernel calls per viewpoint),
-    and the sweep is kept as far as it helps: the residual is affine in ρ, so along
-    ρ + t(ρ₁ − ρ) it is r − t·A(ρ₁ − ρ), and the best t ≥ 0 is exact and free
-    (``stats["steps"]``: t per sweep; t < 1 cuts an overshooting sweep short, t > 1
-    extends one that fell short, t = 0 keeps ρ). The residual therefore never rises, and no
-    sweep is wasted. λ starts at 0.25 (``relaxation``) and follows the sweeps: the next
-    sweep runs at λ·t, at least half and at most the whole of this one's λ
-    (``stats["relaxations"]``: λ per sweep). Against the schedule this replaced (a sweep
-    that did not lower the residual was undone and λ halved): on the cube at 0.3 / 0.6 m
-    from 100 views 7 sweeps to its stall instead of 13, at a residual of 0.9558 either way;
-    on the parking lot at the paper's grids from 500 views 7 instead of 12, 0.9763 against
-    0.9766 (docs/solvers.md). On consistent data t stays near 1 and so does λ.
+    forward pass per viewpoint: a sweep costs four one-viewpoint kernel calls per
+    viewpoint), and the sweep is kept as far as it helps: the residual is affine in ρ, so
+    along ρ + t(ρ₁ − ρ) it is r − t·A(ρ₁ − ρ), and the best t ≥ 0 is exact and free
+    (``stats["steps"]``: t per sweep; t < 1 cuts an overshooting sweep short, t > 1 extends
+    one that fell short, at most to 2, and t = 0 keeps ρ). The residual therefore never
+    rises, and no sweep is wasted. It costs memory rather than kernel calls: the residuals
+    of every view at the sweep's start and end (n_views × n_freq × n_tx × n_rx each, on
+    every device: 0.5 GB each at 2,500 views of the paper's radar). λ starts at 0.25
+    (``relaxation``) and follows the sweeps: the next sweep runs at λ·t, at least half and
+    at most the whole of this one's λ (``stats["relaxations"]``: λ per sweep). Against the
+    schedule this replaced (a sweep that did not lower the residual was undone and λ
+    halved): on the cube at 0.3 / 0.6 m from 100 views 7 sweeps to its stall instead of 13,
+    at a residual of 0.9558 either way; on the parking lot at the paper's grids from 500
+    views 7 instead of 12, 0.9763 against 0.9766 (docs/solvers.md).
 
     **Both cores on one block:** the blocks are sequential, so the voxels are split over the
     devices instead (one per CPU core). Each device keeps its share of ρ and adds its partial
@@ -80,8 +82,10 @@ def kaczmarz(
       best ρ so far; its time is not counted (for run time against error curves). If it
       returns True, the run ends there (`Outcome.STOPPED`).
 
-    **Returns:** a `Solution` holding the last iterate, the one with the lowest residual.
-    ``history.residual[k]`` is ‖y − Aρ‖/‖y‖ of the iterate kept after sweep k's line search.
+    **Returns:** a `Solution` holding the iterate with the lowest residual (the last: the
+    residual never rises).
+    ``history.residual[k]`` is ‖y − Aρ‖/‖y‖ of the iterate kept after sweep k's line search
+    (from the residuals the search combines: exact but for float32 rounding).
     """
     signal, x = check_problem("kaczmarz", operator, signal, x0, iterations)
     if not 0 < relaxation < 2:
@@ -98,9 +102,11 @@ def kaczmarz(
     x = split_over_devices(jnp.where(mask, pad_leading(x, pad, "constant"), 0))
     norm = jnp.linalg.norm(signal)
     rng = np.random.default_rng(seed)
-    start = x[:n_points]
     # y − Aρ per viewpoint, carried from sweep to sweep: the line search reads it
-    misfit = signal if not bool(jnp.any(start != 0)) else replicated(signal - fn(start))
+    misfit = signal
+    if bool(jnp.any(x != 0)):  # on the operator's own compiled product, as `residual_of`
+        whole, start = replicated((fn, x[:n_points]))
+        misfit = replicated(signal - whole(start))
     state = {"misfit": misfit, "residual": float(relative(jnp.linalg.norm(misfit), norm))}
     relaxations, steps = [relaxation], []
 
@@ -134,7 +140,7 @@ def kaczmarz(
 def _sweep(fn: GRT, points, mask, x, misfit, signal, order, lam):
     """One sweep from ρ = ``x`` (whose residual per viewpoint is ``misfit``) and the line
     search along it: ``-> (ρ', y − Aρ', t, ‖y − Aρ'‖²)`` with ρ₁ the sweep's end and
-    ρ' = ρ + t(ρ₁ − ρ) at the best t ≥ 0, the voxels (points, mask, ρ) split over the
+    ρ' = ρ + t(ρ₁ − ρ) at the best t in [0, 2], the voxels (points, mask, ρ) split over the
     devices. Module-level and jitted on its arguments, so repeated runs of one problem size
     compile once."""
     n_dev = jax.device_count()
@@ -162,9 +168,10 @@ def _sweep(fn: GRT, points, mask, x, misfit, signal, order, lam):
         # the residual is affine in ρ: along ρ + t(ρ₁ − ρ) it is misfit − t·d, d = A(ρ₁ − ρ)
         d = misfit - ended
         dd = jnp.vdot(d, d).real
-        t = jnp.maximum(
-            jnp.where(dd > 0, jnp.vdot(d, misfit).real / jnp.where(dd > 0, dd, 1), 0), 0
-        )
+        t = jnp.where(dd > 0, jnp.vdot(d, misfit).real / jnp.where(dd > 0, dd, 1), 0)
+        # at most 2: the carried residual (1 − t)·misfit + t·ended then never grows the
+        # rounding it carries (the residual at the sweep's end is measured afresh)
+        t = jnp.clip(t, 0, 2)
         kept = misfit - t * d
         return x + t * (end - x), kept, t, jnp.vdot(kept, kept).real
 
