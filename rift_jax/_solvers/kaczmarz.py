@@ -107,7 +107,7 @@ def kaczmarz(
     if bool(jnp.any(x != 0)):  # on the operator's own compiled product, as `residual_of`
         whole, start = replicated((fn, x[:n_points]))
         misfit = replicated(signal - whole(start))
-    state = {"misfit": misfit, "residual": float(relative(jnp.linalg.norm(misfit), norm))}
+    state = {"misfit": misfit}
     relaxations, steps = [relaxation], []
 
     def step(x):
@@ -130,7 +130,7 @@ def kaczmarz(
         monitor=monitor,
         desc="kaczmarz",
         image=lambda x: x[:n_points],
-        start_measure=state["residual"],
+        start_measure=float(relative(jnp.linalg.norm(misfit), norm)),
     )
     stats |= {"relaxations": relaxations[: len(steps)], "steps": steps}
     return Solution(x, history, stopped, stats)
