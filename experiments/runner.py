@@ -231,10 +231,15 @@ class Budget:
         return {"support": self.support}  # named: `fit`'s default is "auto"
 
     def describe(
-        self, model: str = "RIFT", fista: bool = False, support_views: int | None = None
+        self,
+        model: str = "RIFT",
+        fista: bool = False,
+        support_views: int | None = None,
+        support_threshold: float | None = None,
     ) -> str:
         """The budgets in words, for a results page (FISTA's too, if it ran; the views the
-        support estimate read, if the study set them: `execute`'s ``support_views``)."""
+        support estimate read and its threshold, if the study set them: `execute`'s
+        ``support_views`` and ``support_threshold``)."""
         ls = f"Kaczmarz {self.sweeps} sweep(s)"
         if self.ls_tol:
             ls = (
@@ -262,6 +267,11 @@ class Budget:
             text += (
                 '; every method on the support estimated from its training data (`support="auto"`'
                 + ("" if support_views is None else f", from at most {support_views} views")
+                + (
+                    ""
+                    if support_threshold is None
+                    else f", threshold {support_threshold:g} of the backprojection's peak"
+                )
                 + ")"
             )
         return text
@@ -275,8 +285,9 @@ PAPER_STOPPING = {
 }
 """How the paper-scale scene studies skip what a scene does not need: every method on the
 support estimated from its data, RIFT on an active set, and each run stopped once
-converged. How many views the estimate reads is the study's (`execute`'s ``support_views``;
-the weak target reads all 500). The active set is
+converged. How many views the estimate reads and its threshold are the study's
+(`execute`'s ``support_views`` and ``support_threshold``; the weak target reads all 500, at
+its detection threshold 0.2). The active set is
 re-chosen as `fit`'s default does it, every 10 epochs (`Budget.recheck_every`), so first
 after 10 epochs on every point: chosen after 2, it had dropped the weaker bar at 3:1 and
 4:1 before the field learned it (docs/experiments.md, the weak target)."""
@@ -511,6 +522,7 @@ def execute(
     progress: bool = True,
     part: tuple[int, int] | None = None,
     support_views: int | None = None,
+    support_threshold: float | None = None,
 ) -> dict:
     """Do every run not yet in ``out`` (with ``resume``), writing after each. Returns the
     results dict (as in ``results.json``).
@@ -531,19 +543,23 @@ def execute(
     the first run's and adds the new ones under ``resumed_notes``. ``support_views``: at
     most how many of a run's training views its shared ``support="auto"`` estimate reads
     (`SharedSupports`; None: `rift_jax.estimate_support`'s default, the estimate `fit`
-    makes itself). Runs given a mask or ``support=None`` make no estimate; a traced study
-    makes none either (each run's estimate is on its own clock, `fit`'s), so it refuses
-    ``support_views``.
+    makes itself); ``support_threshold``: its ``threshold`` (None: the estimate's default).
+    Runs given a mask or ``support=None`` make no estimate; a traced study makes none
+    either (each run's estimate is on its own clock, `fit`'s), so it refuses both.
 
     ``resume`` refuses another seed or a changed setting of ``cfg``, except those named in
     ``per_run``: settings that only shape the runs (which runs, their `fit` options), which
     may change as long as every run already done is still asked for, unchanged. A setting
     the file lacks (added to the experiment since) must be at its default."""
-    if trace is not None and support_views is not None:
-        raise ValueError(
-            f"{name}: `support_views` needs the shared estimate, which a traced study does "
-            f"not make (`trace` is set); got support_views={support_views!r}."
-        )
+    for setting, value in (
+        ("support_views", support_views),
+        ("support_threshold", support_threshold),
+    ):
+        if trace is not None and value is not None:
+            raise ValueError(
+                f"{name}: `{setting}` needs the shared estimate, which a traced study does "
+                f"not make (`trace` is set); got {setting}={value!r}."
+            )
     out = Path(out)
     config = _as_json(dataclasses.asdict(cfg))
     results = {"experiment": name, "scale": scale, "config": config, "seed": seed}
@@ -589,7 +605,7 @@ def execute(
         volumes[f"truth/{key}"] = np.asarray(scene.resample(grids[key]).reflectivity)
 
     drawn = time.perf_counter()
-    supports = SharedSupports(radar, support_views)
+    supports = SharedSupports(radar, support_views, support_threshold)
 
     order = {(run.scene, run.label): k for k, run in enumerate(runs)}
 
@@ -702,13 +718,21 @@ class SharedSupports:
     runner adds the estimate's seconds to every run's ``fit_seconds``, so each run's time
     is still what it would cost alone, and the row's ``support_seconds`` names the share.
 
-    ``max_views``: the views each estimate reads (`rift_jax.estimate_support`'s; None: its
-    default, the estimate `fit` makes itself). More views lower the backprojection's
-    sidelobes where a limited aperture leaves them high (the weak target's)."""
+    ``max_views``, ``threshold``: the views each estimate reads and its threshold
+    (`rift_jax.estimate_support`'s; None: its default, as in the estimate `fit` makes
+    itself). More views lower the backprojection's sidelobes where a limited aperture
+    leaves them high (the weak target's), and a threshold above them keeps less of the box
+    where the study knows how faint a target it must keep."""
 
-    def __init__(self, radar: rj.Radar, max_views: int | None = None):
+    def __init__(
+        self, radar: rj.Radar, max_views: int | None = None, threshold: float | None = None
+    ):
         self.radar = radar
-        self.max_views = max_views
+        self.options = {
+            key: value
+            for key, value in (("max_views", max_views), ("threshold", threshold))
+            if value is not None
+        }
         self.estimates: dict = {}
 
     def get(self, name: str, scene, train, granularity, seed, options) -> EstimatedSupport:
@@ -727,8 +751,7 @@ class SharedSupports:
         mask = None
         if np.any(np.asarray(signal)):
             grid = rj.Scene.empty(scene.extent, granularity)
-            views = {} if self.max_views is None else {"max_views": self.max_views}
-            mask = rj.estimate_support(signal, train, grid, radar=self.radar, **views)
+            mask = rj.estimate_support(signal, train, grid, radar=self.radar, **self.options)
         self.estimates[key] = EstimatedSupport(mask, time.perf_counter() - start, False)
         return self.estimates[key]
 

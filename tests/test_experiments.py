@@ -133,45 +133,51 @@ def test_shared_support_is_the_one_fit_estimates(small_cube):
 
 
 def test_shared_support_reads_the_views_it_is_given(small_cube, monkeypatch):
-    """``support_views`` reaches the estimate as its ``max_views`` (the weak target's paper
-    scale reads all 500 views); without it, the estimate is `fit`'s own, at its default."""
+    """``support_views`` and ``support_threshold`` reach the estimate as its ``max_views``
+    and ``threshold`` (the weak target's paper scale reads all 500 views at 0.2); without
+    them, the estimate is `fit`'s own, at its defaults."""
     radar, scene, train, _ = small_cube
     asked = []
 
     def estimate(signal, viewpoints, grid, **options):
-        asked.append(options.pop("max_views", "its default"))
+        asked.append(
+            (options.pop("max_views", "its default"), options.pop("threshold", "its default"))
+        )
         assert options == {"radar": radar}
         return np.ones(grid.shape, bool)
 
     monkeypatch.setattr(rj, "estimate_support", estimate)
-    for views in (12, None):
-        runner.SharedSupports(radar, views).get("cube", scene, train, 0.5, 0, {})
-    assert asked == [12, "its default"]
+    for views, threshold in ((12, 0.3), (None, None)):
+        runner.SharedSupports(radar, views, threshold).get("cube", scene, train, 0.5, 0, {})
+    assert asked == [(12, 0.3), ("its default", "its default")]
 
 
-def test_weak_target_hands_its_support_views_to_the_estimate(tmp_path, monkeypatch):
-    """The paper scale's estimate reads every training view, and the study's setting
-    reaches the shared estimate through `execute` (stopped there: nothing is fitted); a
-    traced study, which makes no shared estimate, refuses it."""
+def test_weak_target_hands_its_support_settings_to_the_estimate(tmp_path, monkeypatch):
+    """The paper scale's estimate reads every training view at the study's detection
+    threshold, and the study's settings reach the shared estimate through `execute`
+    (stopped there: nothing is fitted); a traced study, which makes no shared estimate,
+    refuses them."""
     paper = weak_target.SCALES["paper"]
     assert paper.support_views == paper.n_train and paper.budget.support == "auto"
+    assert paper.support_threshold == paper.threshold
 
     class Made(Exception):
         pass
 
-    def shared(radar, max_views=None):
-        raise Made(max_views)
+    def shared(radar, max_views=None, threshold=None):
+        raise Made(max_views, threshold)
 
     monkeypatch.setattr(runner, "SharedSupports", shared)
-    quick = dataclasses.replace(weak_target.SCALES["quick"], support_views=7)
+    quick = dataclasses.replace(weak_target.SCALES["quick"], support_views=7, support_threshold=0.3)
     with pytest.raises(Made) as made:
         weak_target.main(quick, out=tmp_path, progress=False)
-    assert made.value.args == (7,)
-    with pytest.raises(ValueError, match="`support_views` needs the shared estimate"):
-        runner.execute(
-            "weak_target", "quick", quick, {}, [], pool=None, radar=None, inverse=0.5,
-            n_test=1, seed=0, out=tmp_path, report=None, trace={}, support_views=7,
-        )  # fmt: skip
+    assert made.value.args == (7, 0.3)
+    for setting in ("support_views", "support_threshold"):
+        with pytest.raises(ValueError, match=f"`{setting}` needs the shared estimate"):
+            runner.execute(
+                "weak_target", "quick", quick, {}, [], pool=None, radar=None, inverse=0.5,
+                n_test=1, seed=0, out=tmp_path, report=None, trace={}, **{setting: 7},
+            )  # fmt: skip
 
 
 @pytest.mark.slow
