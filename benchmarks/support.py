@@ -246,21 +246,36 @@ def floor(thresholds=(0.15, 0.2, 0.25, 0.3)) -> dict:
             "voxels screened out",
             flush=True,
         )
+
         for threshold in thresholds:
             kept = pooled >= threshold
             grown = scipy.ndimage.binary_dilation(kept)
-            cell = {"kept": float(kept.mean()), "dilated": float(grown.mean())}
-            cell["lost"] = int(np.sum(truth & ~grown))
-            cell["lost_blurred"] = int(np.sum(blurred & ~grown))
+            cell, said = _losses(grown, truth, blurred)
+            cell |= {"kept": float(kept.mean()), "dilated": float(grown.mean())}
             row["thresholds"][str(threshold)] = cell
             print(
                 f"  threshold {threshold:.2f}: {100 * cell['kept']:4.1f} % of the grid, "
-                f"{100 * cell['dilated']:4.1f} % dilated; lost: {cell['lost']} of {truth.sum()} "
-                f"true voxels, {cell['lost_blurred']} of {blurred.sum()} resampled",
+                f"{100 * cell['dilated']:4.1f} % dilated; {said}",
                 flush=True,
             )
+        # the study's own estimate, screened at its own threshold, its floor rule included
+        mask = rj.estimate_support(signal, train, grid, radar=radar, **cfg.support_estimate())
+        row["study"], said = _losses(mask, truth, blurred)
+        row["study"]["dilated"] = float(mask.mean())
+        print(
+            f"  the study's estimate ({cfg.support_estimate()}): {mask.sum()} points, "
+            f"{100 * mask.mean():.1f} % of the grid; {said}",
+            flush=True,
+        )
         out[name] = row
     return out
+
+
+def _losses(mask, truth, blurred) -> tuple[dict, str]:
+    """The true voxels (both kinds: `floor`) that ``mask`` lost, as numbers and in words."""
+    lost, lost_blurred = int(np.sum(truth & ~mask)), int(np.sum(blurred & ~mask))
+    said = f"lost: {lost} of {truth.sum()} true voxels, {lost_blurred} of {blurred.sum()} resampled"
+    return {"lost": lost, "lost_blurred": lost_blurred}, said
 
 
 def sub_radar(radar: rj.Radar, stride: int, frequency_stride: int):

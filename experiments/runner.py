@@ -27,6 +27,7 @@ import tempfile
 import time
 from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -231,15 +232,10 @@ class Budget:
         return {"support": self.support}  # named: `fit`'s default is "auto"
 
     def describe(
-        self,
-        model: str = "RIFT",
-        fista: bool = False,
-        support_views: int | None = None,
-        support_threshold: float | None = None,
+        self, model: str = "RIFT", fista: bool = False, support: Mapping | None = None
     ) -> str:
-        """The budgets in words, for a results page (FISTA's too, if it ran; the views the
-        support estimate read and its threshold, if the study set them: `execute`'s
-        ``support_views`` and ``support_threshold``)."""
+        """The budgets in words, for a results page (FISTA's too, if it ran; the support
+        estimate's options, if the study set them: `execute`'s ``support``)."""
         ls = f"Kaczmarz {self.sweeps} sweep(s)"
         if self.ls_tol:
             ls = (
@@ -264,14 +260,17 @@ class Budget:
                 "iterations, stopped once converged"
             )
         if self.support == "auto":
+            support = dict(support or {})
+            words = {
+                "max_views": "from at most {} views",
+                "threshold": "threshold {:g} of the backprojection's peak",
+                "floor_factor": "and {:g} times its median voxel",
+            }
+            said = [words[key].format(support.pop(key)) for key in words if key in support]
+            said += [f"{key}={value!r}" for key, value in support.items()]
             text += (
                 '; every method on the support estimated from its training data (`support="auto"`'
-                + ("" if support_views is None else f", from at most {support_views} views")
-                + (
-                    ""
-                    if support_threshold is None
-                    else f", threshold {support_threshold:g} of the backprojection's peak"
-                )
+                + "".join(f", {words}" for words in said)
                 + ")"
             )
         return text
@@ -285,9 +284,9 @@ PAPER_STOPPING = {
 }
 """How the paper-scale scene studies skip what a scene does not need: every method on the
 support estimated from its data, RIFT on an active set, and each run stopped once
-converged. How many views the estimate reads and its threshold are the study's
-(`execute`'s ``support_views`` and ``support_threshold``; the weak target reads all 500, at
-its detection threshold 0.2). The active set is
+converged. How the estimate is made is the study's (`execute`'s ``support``: the weak
+target's reads all 500 views, at its detection threshold 0.2 and 1.5 times the
+backprojection's floor). The active set is
 re-chosen as `fit`'s default does it, every 10 epochs (`Budget.recheck_every`), so first
 after 10 epochs on every point: chosen after 2, it had dropped the weaker bar at 3:1 and
 4:1 before the field learned it (docs/experiments.md, the weak target)."""
@@ -521,8 +520,7 @@ def execute(
     per_run: Collection[str] = ("budget",),
     progress: bool = True,
     part: tuple[int, int] | None = None,
-    support_views: int | None = None,
-    support_threshold: float | None = None,
+    support: Mapping[str, Any] | None = None,
 ) -> dict:
     """Do every run not yet in ``out`` (with ``resume``), writing after each. Returns the
     results dict (as in ``results.json``).
@@ -540,26 +538,22 @@ def execute(
     n processes or machines sharing the study, each with its own ``out``;
     ``python -m experiments.merge`` joins them. ``notes`` go into the results as they are
     (the machine's matmul rate is recorded anyway, in ``versions``); a resumed run keeps
-    the first run's and adds the new ones under ``resumed_notes``. ``support_views``: at
-    most how many of a run's training views its shared ``support="auto"`` estimate reads
-    (`SharedSupports`; None: `rift_jax.estimate_support`'s default, the estimate `fit`
-    makes itself); ``support_threshold``: its ``threshold`` (None: the estimate's default).
-    Runs given a mask or ``support=None`` make no estimate; a traced study makes none
-    either (each run's estimate is on its own clock, `fit`'s), so it refuses both.
+    the first run's and adds the new ones under ``resumed_notes``. ``support``: options of
+    the shared ``support="auto"`` estimate (`SharedSupports`: `rift_jax.estimate_support`'s
+    ``max_views``, ``threshold``, ...; None: its defaults, the estimate `fit` makes
+    itself). Runs given a mask or ``support=None`` make no estimate; a traced study makes
+    none either (each run's estimate is on its own clock, `fit`'s), so it refuses
+    ``support``.
 
     ``resume`` refuses another seed or a changed setting of ``cfg``, except those named in
     ``per_run``: settings that only shape the runs (which runs, their `fit` options), which
     may change as long as every run already done is still asked for, unchanged. A setting
     the file lacks (added to the experiment since) must be at its default."""
-    for setting, value in (
-        ("support_views", support_views),
-        ("support_threshold", support_threshold),
-    ):
-        if trace is not None and value is not None:
-            raise ValueError(
-                f"{name}: `{setting}` needs the shared estimate, which a traced study does "
-                f"not make (`trace` is set); got {setting}={value!r}."
-            )
+    if trace is not None and support:
+        raise ValueError(
+            f"{name}: `support` options need the shared estimate, which a traced study does "
+            f"not make (`trace` is set); got support={support!r}."
+        )
     out = Path(out)
     config = _as_json(dataclasses.asdict(cfg))
     results = {"experiment": name, "scale": scale, "config": config, "seed": seed}
@@ -605,7 +599,7 @@ def execute(
         volumes[f"truth/{key}"] = np.asarray(scene.resample(grids[key]).reflectivity)
 
     drawn = time.perf_counter()
-    supports = SharedSupports(radar, support_views, support_threshold)
+    supports = SharedSupports(radar, support)
 
     order = {(run.scene, run.label): k for k, run in enumerate(runs)}
 
@@ -718,21 +712,14 @@ class SharedSupports:
     runner adds the estimate's seconds to every run's ``fit_seconds``, so each run's time
     is still what it would cost alone, and the row's ``support_seconds`` names the share.
 
-    ``max_views``, ``threshold``: the views each estimate reads and its threshold
-    (`rift_jax.estimate_support`'s; None: its default, as in the estimate `fit` makes
-    itself). More views lower the backprojection's sidelobes where a limited aperture
-    leaves them high (the weak target's), and a threshold above them keeps less of the box
-    where the study knows how faint a target it must keep."""
+    ``options``: `rift_jax.estimate_support`'s, for every estimate (None: its defaults, the
+    estimate `fit` makes itself). Where a limited aperture leaves the backprojection's
+    sidelobes high (the weak target's), more views (``max_views``) lower them, and a
+    threshold set above them (``threshold``, ``floor_factor``) keeps less of the box."""
 
-    def __init__(
-        self, radar: rj.Radar, max_views: int | None = None, threshold: float | None = None
-    ):
+    def __init__(self, radar: rj.Radar, options: Mapping[str, Any] | None = None):
         self.radar = radar
-        self.options = {
-            key: value
-            for key, value in (("max_views", max_views), ("threshold", threshold))
-            if value is not None
-        }
+        self.options = dict(options or {})
         self.estimates: dict = {}
 
     def get(self, name: str, scene, train, granularity, seed, options) -> EstimatedSupport:

@@ -132,52 +132,54 @@ def test_shared_support_is_the_one_fit_estimates(small_cube):
     assert not other_noise.reused
 
 
-def test_shared_support_reads_the_views_it_is_given(small_cube, monkeypatch):
-    """``support_views`` and ``support_threshold`` reach the estimate as its ``max_views``
-    and ``threshold`` (the weak target's paper scale reads all 500 views at 0.2); without
-    them, the estimate is `fit`'s own, at its defaults."""
+def test_shared_support_makes_the_estimate_it_is_given(small_cube, monkeypatch):
+    """The shared estimate takes the study's `estimate_support` options (the weak target's
+    paper scale: 500 views, threshold 0.2, 1.5 floors); without any, it is `fit`'s own."""
     radar, scene, train, _ = small_cube
     asked = []
 
-    def estimate(signal, viewpoints, grid, **options):
-        asked.append(
-            (options.pop("max_views", "its default"), options.pop("threshold", "its default"))
-        )
-        assert options == {"radar": radar}
+    def estimate(signal, viewpoints, grid, *, radar, **options):
+        asked.append(options)
         return np.ones(grid.shape, bool)
 
     monkeypatch.setattr(rj, "estimate_support", estimate)
-    for views, threshold in ((12, 0.3), (None, None)):
-        runner.SharedSupports(radar, views, threshold).get("cube", scene, train, 0.5, 0, {})
-    assert asked == [(12, 0.3), ("its default", "its default")]
+    options = {"max_views": 12, "threshold": 0.3, "floor_factor": 2.0}
+    for given in (options, None):
+        runner.SharedSupports(radar, given).get("cube", scene, train, 0.5, 0, {})
+    assert asked == [options, {}]
 
 
 def test_weak_target_hands_its_support_settings_to_the_estimate(tmp_path, monkeypatch):
-    """The paper scale's estimate reads every training view at the study's detection
-    threshold, and the study's settings reach the shared estimate through `execute`
-    (stopped there: nothing is fitted); a traced study, which makes no shared estimate,
-    refuses them."""
+    """The paper scale's estimate reads every training view, above the study's detection
+    threshold and 1.5 floors; the study's settings reach the shared estimate through
+    `execute` (stopped there: nothing is fitted) and its results page; a traced study,
+    which makes no shared estimate, refuses them."""
     paper = weak_target.SCALES["paper"]
-    assert paper.support_views == paper.n_train and paper.budget.support == "auto"
-    assert paper.support_threshold == paper.threshold
+    assert paper.budget.support == "auto" and paper.support_estimate() == {
+        "max_views": paper.n_train, "threshold": paper.threshold, "floor_factor": 1.5,
+    }  # fmt: skip
+    assert weak_target.SCALES["default"].support_estimate() == {}  # fit's own estimate
+    assert paper.budget.describe(support=paper.support_estimate()).endswith(
+        "from at most 500 views, threshold 0.2 of the backprojection's peak, and 1.5 times "
+        "its median voxel)"
+    )
 
     class Made(Exception):
         pass
 
-    def shared(radar, max_views=None, threshold=None):
-        raise Made(max_views, threshold)
+    def shared(radar, options=None):
+        raise Made(options)
 
     monkeypatch.setattr(runner, "SharedSupports", shared)
-    quick = dataclasses.replace(weak_target.SCALES["quick"], support_views=7, support_threshold=0.3)
+    quick = dataclasses.replace(weak_target.SCALES["quick"], support_views=7, support_floor=2.0)
     with pytest.raises(Made) as made:
         weak_target.main(quick, out=tmp_path, progress=False)
-    assert made.value.args == (7, 0.3)
-    for setting in ("support_views", "support_threshold"):
-        with pytest.raises(ValueError, match=f"`{setting}` needs the shared estimate"):
-            runner.execute(
-                "weak_target", "quick", quick, {}, [], pool=None, radar=None, inverse=0.5,
-                n_test=1, seed=0, out=tmp_path, report=None, trace={}, **{setting: 7},
-            )  # fmt: skip
+    assert made.value.args == ({"max_views": 7, "floor_factor": 2.0},)
+    with pytest.raises(ValueError, match="`support` options need the shared estimate"):
+        runner.execute(
+            "weak_target", "quick", quick, {}, [], pool=None, radar=None, inverse=0.5,
+            n_test=1, seed=0, out=tmp_path, report=None, trace={}, support={"max_views": 7},
+        )  # fmt: skip
 
 
 @pytest.mark.slow

@@ -18,7 +18,7 @@ import rift_jax._checks
 from rift_jax._geometry import spread
 from rift_jax._padding import ladder_size
 from rift_jax._scenes import _scene_from_boxes
-from rift_jax._support import Support, mask_at
+from rift_jax._support import Support, mask_at, pooled_backprojection
 
 
 @pytest.fixture(scope="module")
@@ -227,6 +227,31 @@ def test_fit_auto_is_estimate_support(small_cube):
     assert auto.stats["support_seconds"] + auto.stats["support_leak_seconds"] < auto.seconds
 
 
+def test_floor_factor_keeps_what_stands_above_the_floor(small_cube):
+    """With ``floor_factor`` a voxel must also reach that many times the median voxel of
+    the estimate's backprojection: the mask is that rule (recomputed here from the pooled
+    backprojection), the default's where the factor's level is below the threshold's, and
+    a strict subset of it where above."""
+    radar, scene, train, _ = small_cube
+    grid = rj.Scene.empty(2.0, 0.5)
+    signal = rj.synthesize(scene, train, radar).signal
+    pooled = pooled_backprojection(np.asarray(signal), train, grid, radar, 2, 100)
+    peak, floor = pooled.max(), np.median(pooled)
+    assert floor > 0
+    default = rj.estimate_support(signal, train, grid, radar=radar, exact=True)
+    masks = []
+    for factor in (0.5 * 0.15 * peak / floor, 2 * 0.15 * peak / floor):
+        mask = rj.estimate_support(
+            signal, train, grid, radar=radar, floor_factor=factor, exact=True
+        )
+        rule = pooled >= max(0.15 * peak, factor * floor)
+        np.testing.assert_array_equal(mask, scipy.ndimage.binary_dilation(rule))
+        masks.append(mask)
+    below, above = masks
+    np.testing.assert_array_equal(below, default)
+    assert not np.any(above & ~default) and above.sum() < default.sum()
+
+
 def test_bad_estimate_support_input(small_cube):
     radar, scene, train, _ = small_cube
     grid = rj.Scene.empty(2.0, 0.5)
@@ -237,6 +262,8 @@ def test_bad_estimate_support_input(small_cube):
         (dict(dilation=-1), "dilation"),
         (dict(oversample=0), "oversample"),
         (dict(max_views=0), "max_views"),
+        (dict(floor_factor=0.0), "floor_factor"),
+        (dict(floor_factor=True), "floor_factor"),
         (dict(exact="yes"), "exact"),
     ]:
         with pytest.raises(ValueError, match=match):
