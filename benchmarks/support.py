@@ -3,7 +3,7 @@ active set, trained coarse to fine, and on the whole grid (issue: skip what a sc
 need).
 
     python -m benchmarks.support [--repeats 3] [--epochs 100] [--full-epochs 2]
-    python -m benchmarks.support --coverage
+    python -m benchmarks.support --coverage [--floor-factor K]
     python -m benchmarks.support --screen
     python -m benchmarks.support --target
     python -m benchmarks.support --sequence [--scenes 6]
@@ -44,7 +44,9 @@ checks' programs compiled already: the comparison favours it.
 
 ``--coverage`` instead checks ``support="auto"`` on the paper's five scenes and on random
 box scenes (ρ from 0.25 to 1, seeds 0-9; the defaults were chosen on the paper's scenes and
-seeds 0-3), each from 100 views: points kept, true voxels lost, seconds.
+seeds 0-3), each from 100 views: points kept, true voxels lost, seconds; with
+``--floor-factor K``, of the estimate that also asks for K times the backprojection's floor
+(`rift_jax.estimate_support`'s ``floor_factor``).
 
 ``--floor`` asks why the weak target's support at the paper's scale is most of its box
 (55-89 %, where its two bars hold 2 %): for each contrast, the study's data (`python -m
@@ -181,7 +183,7 @@ def target(radar, scene, train, test, grid, repeats: int) -> dict:
     return out
 
 
-def coverage(radar, train, grid) -> dict:
+def coverage(radar, train, grid, floor_factor: float | None = None) -> dict:
     scenes = {name: getattr(rj.scenes, name)(0.2) for name in rj.scenes.__all__}
     scenes.pop("weak_target", None)
     scenes |= {f"boxes {seed}": random_boxes(seed) for seed in range(10)}
@@ -189,7 +191,7 @@ def coverage(radar, train, grid) -> dict:
     for name, scene in scenes.items():
         signal = rj.synthesize(scene, train, radar).signal
         start = time.perf_counter()
-        mask = rj.estimate_support(signal, train, grid, radar=radar)
+        mask = rj.estimate_support(signal, train, grid, radar=radar, floor_factor=floor_factor)
         seconds = time.perf_counter() - start
         truth = voxels_holding(grid, scene.occupied()[0])  # all nearest, on a tie
         out[name] = {"points": int(mask.sum()), "true": int(truth.sum())}
@@ -388,6 +390,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--epochs", type=int, default=100)
     parser.add_argument("--full-epochs", type=int, default=2)
     parser.add_argument("--coverage", action="store_true")
+    parser.add_argument("--floor-factor", type=float, default=None)
     parser.add_argument("--screen", action="store_true")
     parser.add_argument("--target", action="store_true")
     parser.add_argument("--sequence", action="store_true")
@@ -406,7 +409,7 @@ def main(argv=None) -> dict:
     train, test = rj.Viewpoints.grid().split(100, 100, seed=0)
     grid = rj.Scene.empty(5.0, 0.4)
     if args.coverage:
-        return coverage(radar, train, grid)
+        return coverage(radar, train, grid, args.floor_factor)
     if args.screen:
         return screen(radar, train, grid)
     if args.target:

@@ -180,7 +180,9 @@ def test_auto_support_keeps_every_true_voxel():
     at the voxel centres (``oversample=1``), the same backprojection loses true voxels:
     the check can fail, and the finer sampling is what passes it. (The two exact
     backprojections, ~10 s each, run on two scenes: the sphere, curved and keeping the most
-    points, and "boxes 12", where the coarse sampling loses 11 true voxels.)"""
+    points, and "boxes 12", where the coarse sampling loses 11 true voxels.) A threshold
+    also set on the floor (``floor_factor=1.5``, the weak target's) keeps a subset of it,
+    every true voxel still."""
     radar = rj.Radar()
     train, _ = rj.Viewpoints.grid().split(60, 1, seed=0)
     grid = rj.Scene.empty(2.0, 0.4)
@@ -199,6 +201,9 @@ def test_auto_support_keeps_every_true_voxel():
         assert not mask.flags.writeable and mask.shape == grid.shape
         assert not np.any(truth & ~mask), f"{name}: lost {np.sum(truth & ~mask)} true voxels"
         assert mask.sum() < 0.5 * mask.size, f"{name}: kept {mask.sum()} of {mask.size}"
+        floored = rj.estimate_support(signal, train, grid, radar=radar, floor_factor=1.5)
+        assert not np.any(floored & ~mask), f"{name}: the floor rule added points"
+        assert not np.any(truth & ~floored), f"{name}: the floor rule lost true voxels"
         if name not in ("sphere", "boxes 12"):
             continue
         exact = rj.estimate_support(signal, train, grid, radar=radar, exact=True)
