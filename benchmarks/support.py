@@ -48,16 +48,18 @@ seeds 0-3), each from 100 views: points kept, true voxels lost, seconds; with
 ``--floor-factor K``, of the estimate that also asks for K times the backprojection's floor
 (`rift_jax.estimate_support`'s ``floor_factor``).
 
-``--floor`` asks why the weak target's support at the paper's scale is most of its box
-(55-89 %, where its two bars hold 2 %): for each contrast, the study's data (`python -m
-experiments.weak_target --scale paper`: 500 training views of the limited aperture, its
-grids) and its estimate's backprojection, it prints the floor (the median over the voxels
-that hold no bar, relative to the peak), the lowest value of a bar's voxels, and at each
-threshold the voxels kept before and after the dilation and the true voxels lost: those
-nearest to a bar's point (`voxels_holding`, as ``--coverage`` counts them) and those where
-the truth resampled to the inverse grid (the metrics' truth) reaches 1 % of its peak, its
-blurred edges too (a third of its non-zero voxels are the anti-aliasing's tails, below
-10⁻⁵). Every method of the study runs on that support, so its size sets the study's time.
+``--floor`` asks why the weak target's support at the paper's scale, at `fit`'s threshold,
+is most of its box (55-89 %, where its two bars hold 2 %). For each contrast it takes the
+study's data (`python -m experiments.weak_target --scale paper`: 500 training views of the
+limited aperture, its grids) and its estimate's backprojection, and prints the floor (the
+median over the voxels that hold no bar, relative to the peak), the lowest value of a
+bar's voxels, and at each threshold the voxels kept before and after the dilation and the
+true voxels lost: those nearest to a bar's point (`voxels_holding`, as ``--coverage``
+counts them) and those where the truth resampled to the inverse grid (the metrics' truth)
+reaches 1 % of its peak, its blurred edges too (a third of its non-zero voxels are the
+anti-aliasing's tails, below 10⁻⁵). Then it makes the study's own estimate (its threshold
+and ``floor_factor``, screened at its threshold) and prints the same. Every method of the
+study runs on that support, so its size sets the study's time.
 
 ``--screen`` measures whether a cheaper backprojection could screen the grid before the
 full one (issue 12, item 4: fewer antenna pairs or frequencies, only where it pays). On the
@@ -400,6 +402,8 @@ def main(argv=None) -> dict:
     if args.full_epochs < 2:
         parser.error("--full-epochs must be at least 2 (the first epoch compiles)")
 
+    if args.floor_factor is not None and not args.coverage:
+        parser.error("--floor-factor is --coverage's")
     if args.sequence:
         return sequence(args.scenes)
     if args.floor:

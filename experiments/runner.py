@@ -261,16 +261,16 @@ class Budget:
             )
         if self.support == "auto":
             support = dict(support or {})
-            words = {
+            phrases = {
                 "max_views": "from at most {} views",
                 "threshold": "threshold {:g} of the backprojection's peak",
-                "floor_factor": "and {:g} times its median voxel",
+                "floor_factor": "at least {:g} times the backprojection's median voxel",
             }
-            said = [words[key].format(support.pop(key)) for key in words if key in support]
+            said = [phrases[key].format(support.pop(key)) for key in phrases if key in support]
             said += [f"{key}={value!r}" for key, value in support.items()]
             text += (
                 '; every method on the support estimated from its training data (`support="auto"`'
-                + "".join(f", {words}" for words in said)
+                + "".join(f", {phrase}" for phrase in said)
                 + ")"
             )
         return text
@@ -285,8 +285,7 @@ PAPER_STOPPING = {
 """How the paper-scale scene studies skip what a scene does not need: every method on the
 support estimated from its data, RIFT on an active set, and each run stopped once
 converged. How the estimate is made is the study's (`execute`'s ``support``: the weak
-target's reads all 500 views, at its detection threshold 0.2 and 1.5 times the
-backprojection's floor). The active set is
+target's paper scale sets its own, `weak_target.Config.support_estimate`). The active set is
 re-chosen as `fit`'s default does it, every 10 epochs (`Budget.recheck_every`), so first
 after 10 epochs on every point: chosen after 2, it had dropped the weaker bar at 3:1 and
 4:1 before the field learned it (docs/experiments.md, the weak target)."""

@@ -139,6 +139,7 @@ def test_shared_support_makes_the_estimate_it_is_given(small_cube, monkeypatch):
     asked = []
 
     def estimate(signal, viewpoints, grid, *, radar, **options):
+        assert radar is small_cube[0]
         asked.append(options)
         return np.ones(grid.shape, bool)
 
@@ -160,8 +161,8 @@ def test_weak_target_hands_its_support_settings_to_the_estimate(tmp_path, monkey
     }  # fmt: skip
     assert weak_target.SCALES["default"].support_estimate() == {}  # fit's own estimate
     assert paper.budget.describe(support=paper.support_estimate()).endswith(
-        "from at most 500 views, threshold 0.2 of the backprojection's peak, and 1.5 times "
-        "its median voxel)"
+        "from at most 500 views, threshold 0.2 of the backprojection's peak, at least 1.5 "
+        "times the backprojection's median voxel)"
     )
 
     class Made(Exception):

@@ -255,6 +255,12 @@ def test_floor_factor_keeps_what_stands_above_the_floor(small_cube):
     below, above = masks
     np.testing.assert_array_equal(below, default)
     assert not np.any(above & ~default) and above.sum() < default.sum()
+    # screened (the default path) as exact: the screen drops only voxels below the median
+    screened = rj.estimate_support(signal, train, grid, radar=radar, floor_factor=factor)
+    np.testing.assert_array_equal(screened, above)
+    # a factor that puts the level above the peak would keep nothing: said, not returned
+    with pytest.raises(ValueError, match="`floor_factor`.*no voxel would be kept"):
+        rj.estimate_support(signal, train, grid, radar=radar, floor_factor=1.1 * peak / floor)
 
 
 def test_bad_estimate_support_input(small_cube):
