@@ -213,11 +213,8 @@ def floor(thresholds=(0.15, 0.2, 0.25, 0.3)) -> dict:
     from experiments.runner import draw
 
     cfg = weak_target.SCALES["paper"]
-    radar = rj.Radar(distance=cfg.distance, near_field=False)
-    pool = rj.Viewpoints.grid(
-        cfg.n_azimuth, cfg.n_polar, azimuth_range=cfg.angle_range, polar_range=cfg.angle_range
-    )
-    train, _ = draw(pool, cfg.n_train, cfg.n_test, seed=0)
+    radar = cfg.radar()
+    train, _ = draw(cfg.viewpoints(), cfg.n_train, cfg.n_test, seed=0)
     grid = rj.Scene.empty(cfg.extent, cfg.inverse)
     out = {}
     for ratio in cfg.ratios:

@@ -113,6 +113,17 @@ class Config:
         }
         return {key: value for key, value in options.items() if value is not None}
 
+    def radar(self) -> rj.Radar:
+        """The study's radar: the paper's array, far field at ``distance``."""
+        return rj.Radar(distance=self.distance, near_field=False)
+
+    def viewpoints(self) -> rj.Viewpoints:
+        """The grid of viewpoints every training and test view is drawn from."""
+        return rj.Viewpoints.grid(
+            self.n_azimuth, self.n_polar, azimuth_range=self.angle_range,
+            polar_range=self.angle_range,
+        )  # fmt: skip
+
 
 SCALES = {
     "quick": Config(
@@ -360,10 +371,7 @@ def main(
 ) -> dict:
     """Every run of ``cfg`` (those already in ``out`` too, with ``resume``); the results
     dict as written to ``out/results.json``."""
-    radar = rj.Radar(distance=cfg.distance, near_field=False)
-    pool = rj.Viewpoints.grid(
-        cfg.n_azimuth, cfg.n_polar, azimuth_range=cfg.angle_range, polar_range=cfg.angle_range
-    )
+    radar, pool = cfg.radar(), cfg.viewpoints()
     scenes = {
         contrast(r): rj.scenes.weak_target(r, cfg.forward, extent=cfg.extent) for r in cfg.ratios
     }

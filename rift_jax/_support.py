@@ -281,12 +281,13 @@ def estimate_support(
         raise ValueError("estimate_support: `signal` is zero; there is nothing to find.")
     level = threshold * peak
     if floor_factor is not None:
-        level = max(level, floor_factor * float(np.median(pooled)))
+        floor = float(np.median(pooled))
+        level = max(level, floor_factor * floor)
         if level > peak:  # the median voxel within a factor of the peak: the floor is all
             raise ValueError(
                 f"estimate_support: `floor_factor` {floor_factor!r} asks for "
                 f"{level / peak:.3g} times the backprojection's peak (its median voxel is "
-                f"{np.median(pooled) / peak:.3g} of it): no voxel would be kept. Lower it, or "
+                f"{floor / peak:.3g} of it): no voxel would be kept. Lower it, or "
                 "pass None where the scene fills most of the grid."
             )
     mask = pooled >= level
